@@ -1,0 +1,48 @@
+# One-command set-up, run and test for cosserat_ros without a ROS install (PyPI wheels).
+# Everything lands in .venv; targets are idempotent (the install is redone only when a
+# tracked input changes).
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+ENV := AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+DEPS_STAMP := $(VENV)/.deps-installed
+PKG_STAMP := $(VENV)/.pkg-installed
+PKG_SOURCES := $(shell find cosserat_ros config resource -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
+PARAMS ?= config/cloth.yaml
+
+.PHONY: install run test validate bench lint clean
+
+install: $(PKG_STAMP)
+
+$(DEPS_STAMP): requirements.txt requirements-dev.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade 'pip<25'
+	$(PY) -m pip install --quiet -r requirements-dev.txt
+	touch $@
+
+# Installed exactly as colcon installs an ament_python package: python modules into
+# site-packages, executables into $(VENV)/lib/cosserat_ros (where `ros2 run` looks), data
+# files (package.xml, config, ament index marker) into $(VENV)/share.
+$(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
+	rm -rf build/cosserat_ros_install
+	$(PY) setup.py --quiet egg_info --egg-base build \
+	    build --build-base build/cosserat_ros_install \
+	    install --prefix $(CURDIR)/$(VENV) --record build/install-record.txt \
+	    --single-version-externally-managed >/dev/null
+	touch $@
+
+run: $(PKG_STAMP)
+	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS)
+
+test: $(PKG_STAMP)
+	$(ENV) $(PY) -m pytest -q test
+
+validate: $(PKG_STAMP)
+	$(ENV) $(PY) -m cosserat_ros.validate --out docs
+
+bench: $(PKG_STAMP)
+	$(ENV) $(PY) -m cosserat_ros.bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info

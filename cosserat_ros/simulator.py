@@ -1,0 +1,543 @@
+"""The cloth simulator: rest shape, material, state, forces and time stepping.
+
+This module imports no ROS package: scripts, tests and benchmarks use it directly, and
+``cosserat_ros.node`` is a thin layer over it.
+
+Example::
+
+    from cosserat_ros.mesh import grid_mesh
+    from cosserat_ros.simulator import ClothSimulator, Material
+    sim = ClothSimulator(grid_mesh(40, 40), Material(zeta=100.0, xi=1e-5, phi=0.0,
+                                                     density=0.2, damping=0.05), dt=2e-4)
+    sim.gravity = (0.0, 0.0, -9.81)
+    sim.pin([0, 40])
+    sim.step(1000)
+    print(sim.energy()['total'])
+
+Units are SI throughout: positions [m], velocities [m/s], forces [N], energies [J],
+accelerations [m/s^2], time [s].
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional
+import warnings
+
+import numpy as np
+
+from . import forces as _forces
+from .constants import CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR
+from .forces import DIVERGENCE_METHODS
+from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
+                       Geometry)
+from .integrator import (internal_forces as _internal_forces, METHOD_COVARIANT,
+                         METHOD_VARIATIONAL, run_steps, stability_limit)
+from .material import Material
+from .mesh import ClothMesh
+
+__all__ = ['ClothSimulator', 'Material', 'SimulationDiverged']
+
+
+class SimulationDiverged(RuntimeError):
+    """A step produced a non-finite value or a physically impossible speed.
+
+    The simulator has been put back to the state it had before the failing ``step`` call.
+    Attributes: ``step`` (the global step index that diverged), ``time`` [s] and ``hint``.
+    """
+
+    def __init__(self, step: int, time: float, hint: str):
+        self.step = step
+        self.time = time
+        self.hint = hint
+        super().__init__(f'simulation diverged at step {step} (t = {time:.6g} s): {hint}')
+
+
+def _sym3(t: np.ndarray) -> np.ndarray:
+    """(n,2,2) symmetric -> (n,3) as (11, 12, 22)."""
+    return np.ascontiguousarray(np.stack([t[:, 0, 0], t[:, 0, 1], t[:, 1, 1]], axis=1))
+
+
+def _as_vec3(value, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64) if not isinstance(value, str) else None
+    if arr is None or arr.shape != (3,):
+        raise ValueError(f'{name} must be 3 numbers, got {value!r}')
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f'{name} must be finite, got {value!r}')
+    return arr
+
+
+class ClothSimulator:
+    """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29).
+
+    Parameters
+    ----------
+    mesh : ClothMesh
+        The rest shape (flat or curved, open or closed).
+    material : Material
+        Constants zeta, xi, phi, density, damping (SI units).
+    dt : float
+        Time step [s]; a warning is issued when it exceeds :meth:`critical_dt`.
+    divergence : {"variational", "covariant"}
+        Discretisation of the internal force N^a|_a: the exact negative gradient of the
+        discrete energy (default; any boundary), or the seed's covariant derivatives
+        (comparison only; needs every boundary vertex pinned).
+    check_dt : bool
+        Compare ``dt`` with :meth:`critical_dt` on construction (costs ~100 force
+        evaluations) and warn when it is too large.
+    """
+
+    def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
+                 divergence: str = 'variational', check_dt: bool = True):
+        if not isinstance(mesh, ClothMesh):
+            raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
+        if not isinstance(material, Material):
+            raise ValueError(f'material must be a Material, got {type(material).__name__}')
+        if divergence not in DIVERGENCE_METHODS:
+            raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
+                             f'got {divergence!r}')
+        self.mesh = mesh
+        self._divergence = divergence
+        self._method = METHOD_VARIATIONAL if divergence == 'variational' else METHOD_COVARIANT
+        n, m = mesh.n_vertices, mesh.n_faces
+        self._jet = build_jet_operator(mesh)
+        self._rest_geometry: Dict[str, Geometry] = {}
+        rest = self._rest('jet')
+        self._rest_a = _sym3(rest.metric)
+        self._ainv = _sym3(np.linalg.inv(rest.metric))
+        self._rest_b = _sym3(rest.curvature)
+        self._dinv, self._K = self._face_charts()
+        frames = self._jet.frames
+        src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
+        self._st_T = np.ascontiguousarray(
+            np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
+        self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
+                     self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
+                     self._jet.st_w, self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
+                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
+        self._cov = (self._rest_a, self._st_T)
+        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 5, 3)),
+                      np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
+                      np.zeros((m, 3, 3)))
+        self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
+                       np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
+        self._force = np.zeros((n, 3))
+        self._x = mesh.vertices.copy()
+        self._v = np.zeros((n, 3))
+        self._pinned = np.zeros(n, dtype=bool)
+        self._f_vertex = np.zeros((n, 3))
+        self._force_field = np.zeros(3)
+        self._gravity = np.zeros(3)
+        self._acc = np.zeros(2)
+        self._time = 0.0
+        self._steps = 0
+        self._critical_dt: Optional[float] = None
+        self._material = material
+        self._set_material_arrays(material)
+        self._dt = self._check_positive(dt, 'dt')
+        if check_dt:
+            self._warn_if_unstable(self._dt)
+
+    # ------------------------------------------------------------------ set-up helpers
+    def _rest(self, curvature: str) -> Geometry:
+        if curvature not in self._rest_geometry:
+            self._rest_geometry[curvature] = compute_geometry(self.mesh.vertices, self.mesh,
+                                                              self._jet, curvature)
+        return self._rest_geometry[curvature]
+
+    def _face_charts(self):
+        """Rest edge matrices: Dinv_t (m,2,2) in each triangle's orthonormal chart, and
+        K_it = D_t U_it^-1 (m,3,2,2) from vertex charts to triangle charts."""
+        X = self.mesh.vertices
+        f = self.mesh.faces
+        e1 = X[f[:, 1]] - X[f[:, 0]]
+        e2 = X[f[:, 2]] - X[f[:, 0]]
+        t1 = e1 / np.linalg.norm(e1, axis=1)[:, None]
+        t2 = np.cross(self.mesh.face_normals, t1)
+        D = np.stack([np.stack([np.einsum('mk,mk->m', e1, t1), np.einsum('mk,mk->m', e2, t1)],
+                               axis=1),
+                      np.stack([np.einsum('mk,mk->m', e1, t2), np.einsum('mk,mk->m', e2, t2)],
+                               axis=1)], axis=1)
+        frames = self._jet.frames[f]   # (m, 3 corners, 3 axes, 3)
+        U = np.stack([np.stack([np.einsum('mck,mk->mc', frames[:, :, 0], e1),
+                                np.einsum('mck,mk->mc', frames[:, :, 0], e2)], axis=-1),
+                      np.stack([np.einsum('mck,mk->mc', frames[:, :, 1], e1),
+                                np.einsum('mck,mk->mc', frames[:, :, 1], e2)], axis=-1)],
+                     axis=2)           # (m, 3, 2, 2)
+        K = np.einsum('mab,mcbd->mcad', D, np.linalg.inv(U))
+        return np.ascontiguousarray(np.linalg.inv(D)), np.ascontiguousarray(K)
+
+    def _set_material_arrays(self, material: Material):
+        self._mat = np.array([material.zeta, material.xi, material.phi])
+        self._mass = material.density * self.mesh.dual_areas
+        self._damp = material.damping * self.mesh.dual_areas
+        self._vmax = DIVERGENCE_SPEED_FACTOR * material.wave_speed + 100.0
+        self._update_applied()
+
+    def _update_applied(self):
+        self._f_applied = self._f_vertex + self._mass[:, None] * self._force_field[None, :]
+
+    @staticmethod
+    def _check_positive(value, name: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
+                                                             np.integer)):
+            raise ValueError(f'{name} must be a number, got {value!r}')
+        value = float(value)
+        if not math.isfinite(value) or value <= 0:
+            raise ValueError(f'{name} must be positive and finite, got {value!r}')
+        return value
+
+    def _indices(self, indices, name: str = 'indices') -> np.ndarray:
+        arr = np.asarray(indices)
+        n = self.mesh.n_vertices
+        if arr.dtype == bool:
+            if arr.shape != (n,):
+                raise ValueError(f'a boolean {name} mask must have shape ({n},), '
+                                 f'got {arr.shape}')
+            return np.flatnonzero(arr)
+        arr = np.atleast_1d(arr)
+        if arr.ndim != 1:
+            raise ValueError(f'{name} must be a 1-D list of vertex indices, got shape '
+                             f'{arr.shape}')
+        if arr.size == 0:
+            return arr.astype(np.int64)
+        if not np.issubdtype(arr.dtype, np.integer):
+            if (np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr))
+                    and np.all(arr == np.round(arr))):
+                arr = arr.astype(np.int64)
+            else:
+                raise ValueError(f'{name} must be integers, got {indices!r}')
+        if arr.min() < 0 or arr.max() >= n:
+            raise ValueError(f'{name} must lie in [0, {n - 1}], got range '
+                             f'[{arr.min()}, {arr.max()}]')
+        return arr.astype(np.int64)
+
+    def _warn_if_unstable(self, dt: float):
+        crit = self.critical_dt()
+        if dt > crit:
+            warnings.warn(f'dt = {dt:.3g} s exceeds the stable limit {crit:.3g} s of this '
+                          'mesh and material: the explicit update will diverge',
+                          RuntimeWarning, stacklevel=3)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices."""
+        return self.mesh.n_vertices
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Current positions (n, 3) [m] (a copy)."""
+        return self._x.copy()
+
+    def set_positions(self, x) -> None:
+        """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp)."""
+        self._x[:] = self._checked_state(x, 'positions')
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Current velocities (n, 3) [m/s] (a copy; at the half step of the leapfrog)."""
+        return self._v.copy()
+
+    def set_velocities(self, v) -> None:
+        """Set velocities (n, 3) [m/s]; pinned vertices keep zero velocity."""
+        arr = self._checked_state(v, 'velocities')
+        arr[self._pinned] = 0.0
+        self._v[:] = arr
+
+    def _checked_state(self, value, name: str) -> np.ndarray:
+        arr = np.array(value, dtype=np.float64)
+        if arr.shape != (self.mesh.n_vertices, 3):
+            raise ValueError(f'{name} must have shape ({self.mesh.n_vertices}, 3), '
+                             f'got {arr.shape}')
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f'{name} must be finite')
+        return arr
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]."""
+        return self._time
+
+    @property
+    def step_count(self) -> int:
+        """Number of steps taken since construction or :meth:`reset`."""
+        return self._steps
+
+    @property
+    def dt(self) -> float:
+        """Time step [s]."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, value: float):
+        self._dt = self._check_positive(value, 'dt')
+
+    @property
+    def divergence(self) -> str:
+        """The discretisation of N^a|_a in use."""
+        return self._divergence
+
+    @property
+    def material(self) -> Material:
+        """Material constants; assigning a new :class:`Material` takes effect at once."""
+        return self._material
+
+    @material.setter
+    def material(self, material: Material):
+        if not isinstance(material, Material):
+            raise ValueError(f'material must be a Material, got {type(material).__name__}')
+        self._material = material
+        self._critical_dt = None
+        self._set_material_arrays(material)
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """Gravitational acceleration g (3,) [m/s^2]; (0, 0, 0) by default."""
+        return self._gravity.copy()
+
+    @gravity.setter
+    def gravity(self, g):
+        self._gravity = _as_vec3(g, 'gravity')
+
+    @property
+    def force_field(self) -> np.ndarray:
+        """Uniform external force per unit mass F (3,) [m/s^2], e.g. wind."""
+        return self._force_field.copy()
+
+    @force_field.setter
+    def force_field(self, f):
+        self._force_field = _as_vec3(f, 'force_field')
+        self._update_applied()
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """Boolean mask (n,) of pinned vertices (a copy)."""
+        return self._pinned.copy()
+
+    def pin(self, indices) -> None:
+        """Pin vertices (indices or a boolean mask): they keep their position."""
+        idx = self._indices(indices)
+        self._pinned[idx] = True
+        self._v[idx] = 0.0
+
+    def unpin(self, indices) -> None:
+        """Release pinned vertices (indices or a boolean mask)."""
+        self._pinned[self._indices(indices)] = False
+
+    def set_vertex_forces(self, indices, forces) -> None:
+        """Replace the external nodal forces [N]: ``forces`` (k, 3) on vertices ``indices``
+        (k,). Repeated indices add up. Previous nodal forces are removed."""
+        idx = self._indices(indices)
+        f = np.asarray(forces, dtype=np.float64)
+        if f.shape != (len(idx), 3):
+            raise ValueError(f'forces must have shape ({len(idx)}, 3) for {len(idx)} '
+                             f'indices, got {f.shape}')
+        if not np.all(np.isfinite(f)):
+            raise ValueError('forces must be finite')
+        fv = np.zeros_like(self._f_vertex)
+        np.add.at(fv, idx, f)
+        self._f_vertex = fv
+        self._update_applied()
+
+    def clear_vertex_forces(self) -> None:
+        """Remove all external nodal forces."""
+        self._f_vertex = np.zeros_like(self._f_vertex)
+        self._update_applied()
+
+    @property
+    def vertex_forces(self) -> np.ndarray:
+        """External nodal forces currently applied (n, 3) [N] (a copy)."""
+        return self._f_vertex.copy()
+
+    def reset(self) -> None:
+        """Back to the rest shape at rest: positions, velocities, time, step count and the
+        energy-balance integrals. Pins, forces, gravity and material are kept."""
+        self._x[:] = self.mesh.vertices
+        self._v[:] = 0.0
+        self._acc[:] = 0.0
+        self._time = 0.0
+        self._steps = 0
+
+    # ------------------------------------------------------------------ dynamics
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` steps of size :attr:`dt` inside compiled code.
+
+        Raises :class:`SimulationDiverged` (and restores the state from before this call)
+        when a step produces a non-finite value or an impossible speed.
+        """
+        if isinstance(n, bool) or int(n) != n or n < 0:
+            raise ValueError(f'n must be a non-negative integer, got {n!r}')
+        n = int(n)
+        if n == 0:
+            return
+        backup = (self._x.copy(), self._v.copy(), self._acc.copy())
+        done = run_steps(n, self._x, self._v, self._f_applied, self._mass, self._damp,
+                         self._pinned, self._gravity, self._dt, self._vmax ** 2, self._acc,
+                         self._method, self._ops, self._cov, self._mat, self._work,
+                         self._cwork, self._force)
+        if done < n:
+            self._x[:], self._v[:], self._acc[:] = backup
+            crit = self.critical_dt()
+            if self._dt > crit:
+                hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
+                        'reduce dt or soften the material')
+            else:
+                hint = ('a speed exceeded the elastic limit or a value became non-finite; '
+                        'check the applied forces and the material, then reset')
+            raise SimulationDiverged(self._steps + done + 1, self._time + (done + 1) * self._dt,
+                                     hint)
+        self._steps += n
+        self._time += n * self._dt
+
+    def internal_forces(self) -> np.ndarray:
+        """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""
+        out = np.zeros_like(self._force)
+        self._internal(self._x, out)
+        return out
+
+    def _internal(self, x, out):
+        _internal_forces(x, self._method, self._ops, self._cov, self._mat, self._work,
+                         self._cwork, out)
+
+    # ------------------------------------------------------------------ energy
+    def _energy_fields(self):
+        """Fill the work arrays with face strains, kap, epsbar at the current state."""
+        tmp = np.empty_like(self._force)
+        _forces.variational_forces(self._x, self._ops, self._mat, self._work, tmp)
+        return tmp
+
+    def energy_densities(self) -> Dict[str, np.ndarray]:
+        """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
+        ``coupling`` and ``total``, each (n,)."""
+        self._energy_fields()
+        _, eps, _, _, kap, epsbar, _ = self._work
+        out = np.empty((self.mesh.n_vertices, 3))
+        _forces.energy_densities(eps, kap, epsbar, self.mesh.faces, self.mesh.face_areas,
+                                 self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
+                                 self._ainv, *self._mat, out)
+        return {'stretching': out[:, 0], 'bending': out[:, 1], 'coupling': out[:, 2],
+                'total': out.sum(axis=1)}
+
+    def energy(self) -> Dict[str, float]:
+        """Energies [J] of the current state and the running balance terms.
+
+        ``kinetic`` uses the velocity synchronised with the positions (the leapfrog
+        half-step correction v + dt/2 a), ``stretching``, ``bending``, ``coupling`` are the
+        discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
+        -sum m g . x, ``total`` = kinetic + elastic + gravity. ``external_work`` (nodal
+        forces and force field) and ``dissipated`` (damping) accumulate since the last
+        reset, so ``total - total(0) ~ external_work - dissipated``.
+        """
+        dens = self.energy_densities()
+        A = self.mesh.dual_areas
+        stretching = float(np.dot(A, dens['stretching']))
+        bending = float(np.dot(A, dens['bending']))
+        coupling = float(np.dot(A, dens['coupling']))
+        if self._method == METHOD_VARIATIONAL:
+            f = np.empty_like(self._force)
+            _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
+        else:
+            f = self.internal_forces()
+        m = self._mass[:, None]
+        acc = (f + self._f_applied + m * self._gravity[None, :] - self._damp[:, None] * self._v)
+        vs = self._v + 0.5 * self._dt * acc / m
+        vs[self._pinned] = 0.0
+        kinetic = 0.5 * float(np.sum(self._mass[:, None] * vs * vs))
+        gravity = -float(np.sum(self._mass * (self._x @ self._gravity)))
+        elastic = stretching + bending + coupling
+        return {'kinetic': kinetic, 'stretching': stretching, 'bending': bending,
+                'coupling': coupling, 'elastic': elastic, 'gravity': gravity,
+                'external_work': float(self._acc[0]), 'dissipated': float(self._acc[1]),
+                'total': kinetic + elastic + gravity}
+
+    # ------------------------------------------------------------------ inspection
+    def geometry(self, curvature: str = 'jet') -> Geometry:
+        """Per-vertex geometry of the current state (see :class:`Geometry`).
+
+        ``curvature`` selects the curvature estimator: ``"jet"`` (quadratic least-squares
+        jet, convergent, default) or ``"seed"`` (normal differences along the 1-ring, the
+        seed's Sec. 5.2; does not converge, kept for comparison).
+        """
+        if curvature not in CURVATURE_ESTIMATORS:
+            raise ValueError(f'curvature must be one of {CURVATURE_ESTIMATORS}, '
+                             f'got {curvature!r}')
+        return compute_geometry(self._x, self.mesh, self._jet, curvature,
+                                rest=self._rest(curvature))
+
+    def resultants(self) -> Dict[str, np.ndarray]:
+        """Per-vertex contact quantities from the vertex strains, for inspection:
+        ``M`` = M^ab (n,2,2), ``N`` = N^ab (n,2,2) (Eq. 28), ``N3`` = N^3b = M^ba|_a (n,2),
+        ``force_vectors`` N^b (n,2,3) (Eq. 26), and the material tensors ``Phi``, ``Psi``,
+        ``Theta`` (n,2,2,2,2) of Eq. 19."""
+        from .material import material_tensor
+        basis, chris, mres, nres, nvec = (np.zeros_like(a) for a in self._cwork)
+        _forces.covariant_resultants(self._x, self._jet.st_ptr, self._jet.st_idx,
+                                     self._jet.st_w, self._rest_a, self._ainv, self._rest_b,
+                                     *self._mat, basis, chris, mres, nres)
+        _forces.covariant_force_vectors(self._jet.st_ptr, self._jet.st_idx, self._jet.st_w,
+                                        self._st_T, basis, chris, mres, nres, nvec)
+        n3 = np.einsum('nbk,nk->nb', nvec, basis[:, 2])
+        A = self._rest('jet').metric
+        mat = self._material
+        return {'M': mres, 'N': nres, 'N3': n3, 'force_vectors': nvec,
+                'Phi': material_tensor(mat.zeta, A), 'Psi': material_tensor(mat.xi, A),
+                'Theta': material_tensor(mat.phi, A)}
+
+    # ------------------------------------------------------------------ stability
+    def critical_dt(self) -> float:
+        """Largest stable time step [s] for this mesh and material (cached).
+
+        The highest angular frequency omega_max of the linearised system around the rest
+        shape is found by Lanczos iteration on M^-1/2 K M^-1/2 (K v from central
+        differences of the internal force), and the damped symplectic Euler limit
+        ``dt < (sqrt(gamma^2 + 4 omega^2) - gamma) / omega^2`` (gamma = rho/mu) is applied.
+        For membranes omega_max ~ 2 c / h (c = sqrt(6 zeta/mu)), giving the rule of thumb
+        dt <~ 0.8 h / c of model.md; bending adds ~ sqrt(D/mu) (k/h)^2 on fine meshes.
+        """
+        if self._critical_dt is None:
+            om = math.sqrt(self.max_eigenvalue())
+            gamma = self._material.damping / self._material.density
+            self._critical_dt = CRITICAL_DT_SAFETY * stability_limit(om, gamma)
+        return self._critical_dt
+
+    def max_eigenvalue(self, iterations: int = 60, seed: int = 0) -> float:
+        """omega_max^2 [1/s^2] of the linearised free system at rest (Lanczos, an upper
+        estimate: largest Ritz value plus its residual)."""
+        X = self.mesh.vertices
+        n3 = 3 * self.mesh.n_vertices
+        minv_sqrt = np.repeat(1.0 / np.sqrt(self._mass), 3)
+        h = self.mesh.mean_edge_length
+        f_p = np.empty_like(self._force)
+        f_m = np.empty_like(self._force)
+
+        def op(q):
+            d = (minv_sqrt * q).reshape(-1, 3)
+            eps = 1e-6 * h / max(np.abs(d).max(), 1e-300)
+            self._internal(X + eps * d, f_p)
+            self._internal(X - eps * d, f_m)
+            return -minv_sqrt * ((f_p - f_m).ravel() / (2 * eps))
+
+        k = min(iterations, n3)
+        rng = np.random.default_rng(seed)
+        Q = np.zeros((k + 1, n3))
+        alpha = np.zeros(k)
+        beta = np.zeros(k)
+        q = rng.standard_normal(n3)
+        Q[0] = q / np.linalg.norm(q)
+        for j in range(k):
+            w = op(Q[j])
+            alpha[j] = Q[j] @ w
+            w -= Q[:j + 1].T @ (Q[:j + 1] @ w)   # full re-orthogonalisation
+            w -= Q[:j + 1].T @ (Q[:j + 1] @ w)
+            beta[j] = np.linalg.norm(w)
+            if beta[j] < 1e-12 * abs(alpha[j]) or j == k - 1:
+                k = j + 1
+                break
+            Q[j + 1] = w / beta[j]
+        T = np.diag(alpha[:k]) + np.diag(beta[:k - 1], 1) + np.diag(beta[:k - 1], -1)
+        theta, s = np.linalg.eigh(T)
+        return float(theta[-1] + abs(beta[k - 1] * s[-1, -1]))
+
+    def __repr__(self) -> str:
+        return (f'ClothSimulator({self.mesh!r}, {self._material}, dt={self._dt:g}, '
+                f'divergence={self._divergence!r})')

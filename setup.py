@@ -1,0 +1,29 @@
+"""ament_python set-up for cosserat_ros (colcon and `make` both install through this file)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'cosserat_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/meshes', glob('config/meshes/*')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=False,
+    maintainer='cosserat_ros developers',
+    maintainer_email='cosserat-ros@example.com',
+    description='Cosserat-surface cloth simulation served as a ROS 2 node.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+        ],
+    },
+)
