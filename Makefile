@@ -25,7 +25,7 @@ $(DEPS_STAMP): requirements.txt requirements-dev.txt
 # site-packages, executables into $(VENV)/lib/cosserat_ros (where `ros2 run` looks), data
 # files (package.xml, config, ament index marker) into $(VENV)/share.
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
-	rm -rf build/cosserat_ros_install
+	rm -rf build/cosserat_ros_install && mkdir -p build
 	$(PY) setup.py --quiet egg_info --egg-base build \
 	    build --build-base build/cosserat_ros_install \
 	    install --prefix $(CURDIR)/$(VENV) --record build/install-record.txt \

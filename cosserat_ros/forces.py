@@ -105,8 +105,9 @@ def _to_face_chart(K, t, c, s11, s12, s22):
 
 @nb.njit(cache=True, inline='always')
 def _jet(x, st_ptr, st_idx, st_w, i, out):
-    """out (5, 3): a_1, a_2, r_11, r_12, r_22 of vertex i."""
-    for c in range(5):
+    """out (nc, 3): a_1, a_2, r_11, r_12, r_22 (and the cubic terms) of vertex i."""
+    nc = st_w.shape[1]
+    for c in range(nc):
         out[c, 0] = 0.0
         out[c, 1] = 0.0
         out[c, 2] = 0.0
@@ -115,7 +116,7 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
         x0 = x[j, 0]
         x1 = x[j, 1]
         x2 = x[j, 2]
-        for c in range(5):
+        for c in range(nc):
             w = st_w[k, c]
             out[c, 0] += w * x0
             out[c, 1] += w * x1
@@ -123,14 +124,20 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
 
 
 @nb.njit(cache=True, parallel=True)
-def vertex_bending(x, st_ptr, st_idx, st_w, vf_ptr, vf_face, vf_corner, eps, face_area, K,
-                   dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap, epsbar):
-    """Per-vertex bending and coupling: kap, epsbar (n,3), jet stresses J (n,5,3) and the
-    coupling stress Theta kap (n,3) that the faces take up. See the module docstring."""
+def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_face, vf_corner,
+                   eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
+                   epsbar, sgrad, estab):
+    """Per-vertex bending and coupling: kap, epsbar (n,3), jet stresses J (n,5,3), the
+    coupling stress Theta kap (n,3) that the faces take up, and the jet-residual
+    stabilisation: its energy estab (n,) and direct gradient per stencil entry sgrad (K,3).
+    See the module docstring."""
     n = x.shape[0]
+    nc = st_w.shape[1]
     for i in nb.prange(n):
-        jt = np.empty((5, 3))
+        jt = np.zeros((nc, 3))
+        jx = np.zeros((nc, 3))
         _jet(x, st_ptr, st_idx, st_w, i, jt)
+        _jet_residual(x, st_ptr, st_idx, st_x, st_omega, stab[i], i, jt, jx, sgrad, estab)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         n0 = c0 / cn
@@ -205,6 +212,63 @@ def vertex_bending(x, st_ptr, st_idx, st_w, vf_ptr, vf_face, vf_corner, eps, fac
         jstress[i, 1, 0] = da20
         jstress[i, 1, 1] = da21
         jstress[i, 1, 2] = da22
+        for c in range(nc):
+            for k in range(3):
+                jstress[i, c, k] = jx[c, k] + (jstress[i, c, k] if c < 5 else 0.0)
+
+
+@nb.njit(cache=True, inline='always')
+def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, cst, i, jt, jx, sgrad, estab):
+    """Hourglass control of the jet: E_s,i = c_i sum_k omega_k |rho_k|^2 with the fit
+    residual rho_k = x_j - x_i - sum_c phi_c(u_k, v_k) coef_c. Writes estab[i], the direct
+    gradient 2 c omega rho at each stencil entry (the centre takes minus their sum) and adds
+    dE_s/dcoef_c = -sum 2 c omega rho phi_c to jx."""
+    p0 = st_ptr[i]
+    nc = jt.shape[0]
+    e = 0.0
+    sc0 = 0.0
+    sc1 = 0.0
+    sc2 = 0.0
+    ph = np.zeros(9)
+    for k in range(p0 + 1, st_ptr[i + 1]):
+        j = st_idx[k]
+        u = st_x[k, 0]
+        v = st_x[k, 1]
+        ph[0] = u
+        ph[1] = v
+        ph[2] = 0.5 * u * u
+        ph[3] = u * v
+        ph[4] = 0.5 * v * v
+        ph[5] = u * u * u / 6.0
+        ph[6] = 0.5 * u * u * v
+        ph[7] = 0.5 * u * v * v
+        ph[8] = v * v * v / 6.0
+        r0 = x[j, 0] - x[i, 0]
+        r1 = x[j, 1] - x[i, 1]
+        r2 = x[j, 2] - x[i, 2]
+        for c in range(nc):
+            r0 -= ph[c] * jt[c, 0]
+            r1 -= ph[c] * jt[c, 1]
+            r2 -= ph[c] * jt[c, 2]
+        om = cst * st_omega[k]
+        e += om * (r0 * r0 + r1 * r1 + r2 * r2)
+        g0 = 2.0 * om * r0
+        g1 = 2.0 * om * r1
+        g2 = 2.0 * om * r2
+        sgrad[k, 0] = g0
+        sgrad[k, 1] = g1
+        sgrad[k, 2] = g2
+        for c in range(nc):
+            jx[c, 0] -= ph[c] * g0
+            jx[c, 1] -= ph[c] * g1
+            jx[c, 2] -= ph[c] * g2
+        sc0 -= g0
+        sc1 -= g1
+        sc2 -= g2
+    sgrad[p0, 0] = sc0
+    sgrad[p0, 1] = sc1
+    sgrad[p0, 2] = sc2
+    estab[i] = e
 
 
 @nb.njit(cache=True, parallel=True)
@@ -243,7 +307,7 @@ def face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad):
 
 @nb.njit(cache=True, parallel=True)
 def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w,
-                  jstress, force):
+                  jstress, sgrad, force):
     """force[j] = -dE/dx_j: corner gradients of incident faces plus the jet adjoint."""
     n = force.shape[0]
     for j in nb.prange(n):
@@ -259,7 +323,10 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st
         for q in range(tr_ptr[j], tr_ptr[j + 1]):
             i = tr_src[q]
             k = tr_slot[q]
-            for c in range(5):
+            g0 += sgrad[k, 0]
+            g1 += sgrad[k, 1]
+            g2 += sgrad[k, 2]
+            for c in range(st_w.shape[1]):
                 w = st_w[k, c]
                 g0 += w * jstress[i, c, 0]
                 g1 += w * jstress[i, c, 1]
@@ -272,21 +339,22 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st
 @nb.njit(cache=True)
 def variational_forces(x, ops, mat, work, force):
     """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, tr_ptr,
-     tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
+     st_omega, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
-    F, eps, jstress, cstress, kap, epsbar, fgrad = work
+    F, eps, jstress, cstress, kap, epsbar, fgrad, sgrad, estab = work
     face_strain(x, faces, dinv, F, eps)
-    vertex_bending(x, st_ptr, st_idx, st_w, vf_ptr, vf_face, vf_corner, eps, face_area, K,
-                   dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap, epsbar)
+    vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_face, vf_corner,
+                   eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
+                   epsbar, sgrad, estab)
     face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
     gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w, jstress,
-                  force)
+                  sgrad, force)
 
 
 @nb.njit(cache=True, parallel=True)
-def energy_densities(eps, kap, epsbar, faces, face_area, vf_ptr, vf_face, dual_area, ainv,
-                     zeta, xi, phi, out):
+def energy_densities(eps, kap, epsbar, estab, faces, face_area, vf_ptr, vf_face, dual_area,
+                     ainv, zeta, xi, phi, out):
     """Per-vertex energy densities [J/m^2] out (n,3): stretching (dual-area average of the
     incident triangles' W_m), bending xi B(kap, kap), coupling phi B(epsbar, kap)."""
     n = out.shape[0]
@@ -305,7 +373,7 @@ def energy_densities(eps, kap, epsbar, faces, face_area, vf_ptr, vf_face, dual_a
         i12 = ainv[i, 1]
         i22 = ainv[i, 2]
         out[i, 1] = xi * bilinear(i11, i12, i22, kap[i, 0], kap[i, 1], kap[i, 2],
-                                  kap[i, 0], kap[i, 1], kap[i, 2])
+                                  kap[i, 0], kap[i, 1], kap[i, 2]) + estab[i] / dual_area[i]
         out[i, 2] = phi * bilinear(i11, i12, i22, epsbar[i, 0], epsbar[i, 1], epsbar[i, 2],
                                    kap[i, 0], kap[i, 1], kap[i, 2])
 
@@ -319,7 +387,7 @@ def covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, zeta, xi
     M^ab (n,2,2) and N^ab = N*^ab - M^bg a^ad b_dg (n,2,2) (Eq. 27, 28)."""
     n = x.shape[0]
     for i in nb.prange(n):
-        jt = np.empty((5, 3))
+        jt = np.zeros((st_w.shape[1], 3))
         _jet(x, st_ptr, st_idx, st_w, i, jt)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
@@ -335,7 +403,7 @@ def covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, zeta, xi
         a11 = g22 / det
         a12 = -g12 / det
         a22 = g11 / det
-        bb = np.empty(3)
+        bb = np.zeros(3)
         for c in range(3):
             bb[c] = nv[0] * jt[2 + c, 0] + nv[1] * jt[2 + c, 1] + nv[2] * jt[2 + c, 2]
             al = 0 if c < 2 else 1
@@ -436,8 +504,8 @@ def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, for
 @nb.njit(cache=True)
 def covariant_forces(x, ops, cov, mat, cwork, force):
     """Seed-route internal force (n,3) [N] at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, tr_ptr,
-     tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
+     st_omega, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     rest_a, st_T = cov
     basis, chris, mres, nres, nvec = cwork
     covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, mat[0], mat[1],

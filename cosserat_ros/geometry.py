@@ -50,7 +50,7 @@ import warnings
 import numba as nb
 import numpy as np
 
-from .constants import JET_MAX_RINGS, JET_RCOND_MIN
+from .constants import JET_DEGREE, JET_MAX_RINGS, JET_RCOND_MIN
 from .mesh import ClothMesh, csr_from_pairs, k_ring
 
 __all__ = ['JetOperator', 'Geometry', 'build_jet_operator', 'compute_geometry',
@@ -60,6 +60,8 @@ CURVATURE_ESTIMATORS = ('jet', 'seed')
 
 #: Index order of the five jet coefficients.
 JET_A1, JET_A2, JET_R11, JET_R12, JET_R22 = range(5)
+#: rows of the jet operator: 5 (quadratic) or 9 (cubic: + r_111, r_112, r_122, r_222)
+NJET = 9 if JET_DEGREE == 3 else 5
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,8 @@ class JetOperator:
     st_idx: np.ndarray    # (K,) int64, stencil vertices, centre included
     st_w: np.ndarray      # (K, 5) float64 weights
     st_x: np.ndarray      # (K, 2) float64 chart coordinates of the stencil vertex
+    st_omega: np.ndarray  # (K,) float64 least-squares weights, summing to 1 per vertex
+    radius: np.ndarray    # (n,) float64 rms stencil radius h_i [m]
     tr_ptr: np.ndarray    # (n+1,) int64
     tr_src: np.ndarray    # (K,) int64 vertex whose stencil holds the entry
     tr_slot: np.ndarray   # (K,) int64 index k of the entry in st_*
@@ -97,13 +101,17 @@ def rest_frames(mesh: ClothMesh) -> np.ndarray:
 
 
 def _design(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.stack([u, v, 0.5 * u * u, u * v, 0.5 * v * v], axis=-1)
+    cols = [u, v, 0.5 * u * u, u * v, 0.5 * v * v]
+    if JET_DEGREE == 3:
+        cols += [u ** 3 / 6, 0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6]
+    return np.stack(cols, axis=-1)
 
 
 def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
     """Batched LS weights. d (b, S, 3) offsets R_j - R_i; mask (b, S) valid entries.
 
-    Returns weights (b, S, 5) in physical units, chart coords (b, S, 2), rcond (b,).
+    Returns weights (b, S, 5) in physical units, chart coords (b, S, 2), rcond (b,),
+    the least-squares weights omega (b, S) and the stencil radius s (b,) [m].
     """
     u = np.einsum('bsk,bk->bs', d, frame[:, 0])
     v = np.einsum('bsk,bk->bs', d, frame[:, 1])
@@ -111,19 +119,22 @@ def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
     cnt = np.maximum(w.sum(axis=1), 1.0)
     s = np.sqrt(((u * u + v * v) * w).sum(axis=1) / cnt)
     s = np.where(s > 0, s, 1.0)
-    phi = _design(u / s[:, None], v / s[:, None]) * w[..., None]
+    sw = np.sqrt(w)
+    phi = _design(u / s[:, None], v / s[:, None]) * sw[..., None]
     m = np.einsum('bsa,bsc->bac', phi, phi)
     ev = np.linalg.eigvalsh(m)
     rcond = ev[:, 0] / np.maximum(ev[:, -1], 1e-300)
     ok = rcond > JET_RCOND_MIN
-    coef = np.zeros((len(d), 5, d.shape[1]))
+    nc = phi.shape[-1]
+    coef = np.zeros((len(d), nc, d.shape[1]))
     if ok.any():
         coef[ok] = np.linalg.solve(m[ok], np.transpose(phi[ok], (0, 2, 1)))
     for b in np.flatnonzero(~ok):
         coef[b] = np.linalg.pinv(m[b], rcond=1e-10) @ phi[b].T
-    scale = np.stack([1 / s, 1 / s, 1 / s ** 2, 1 / s ** 2, 1 / s ** 2], axis=1)
+    coef = coef * sw[:, None, :]
+    scale = np.stack([1 / s, 1 / s] + [1 / s ** 2] * 3 + [1 / s ** 3] * (nc - 5), axis=1)
     wts = np.transpose(coef * scale[:, :, None], (0, 2, 1))
-    return wts, np.stack([u, v], axis=-1), rcond
+    return wts, np.stack([u, v], axis=-1), rcond, w, s
 
 
 def build_jet_operator(mesh: ClothMesh) -> JetOperator:
@@ -140,20 +151,23 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     pad[pos] = idx
     mask = pad >= 0
     d = X[np.where(mask, pad, 0)] - X[:, None, :]
-    wts, chart, rcond = _fit_weights(d, frames, mask)
+    wts, chart, rcond, omega, radius = _fit_weights(d, frames, mask)
     rings = np.full(n, 2, dtype=np.int64)
-    bad = np.flatnonzero(rcond <= JET_RCOND_MIN)
+    # one-sided stencils: boundary vertices fit over their 3-ring (a cubic jet needs the
+    # points spread over more than the thin one-sided 2-ring); ill-conditioned fits grow
+    bad = np.flatnonzero((rcond <= JET_RCOND_MIN) | (mesh.boundary_vertices & (JET_DEGREE == 3)))
     for i in range(n):
         sel = mask[i]
-        stencils[i] = (pad[i, sel], wts[i, sel], chart[i, sel])
+        stencils[i] = (pad[i, sel], wts[i, sel], chart[i, sel], omega[i, sel])
     for i in bad:
         for k in range(3, JET_MAX_RINGS + 1):
             nb_ = k_ring(mesh.ring1_ptr, mesh.ring1, int(i), k)
-            w_i, c_i, rc = _fit_weights((X[nb_] - X[i])[None], frames[i:i + 1],
-                                        np.ones((1, len(nb_)), dtype=bool))
-            stencils[i] = (nb_, w_i[0], c_i[0])
+            w_i, c_i, rc, om_i, rad_i = _fit_weights((X[nb_] - X[i])[None], frames[i:i + 1],
+                                                     np.ones((1, len(nb_)), dtype=bool))
+            stencils[i] = (nb_, w_i[0], c_i[0], om_i[0])
+            radius[i] = rad_i[0]
             rings[i] = k
-            if rc[0] > JET_RCOND_MIN:
+            if rc[0] > JET_RCOND_MIN and (k >= 3 or not mesh.boundary_vertices[i]):
                 break
         else:
             warnings.warn(f'vertex {i}: even its {JET_MAX_RINGS}-ring cannot determine a '
@@ -163,20 +177,22 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     st_ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(lens, out=st_ptr[1:])
     st_idx = np.empty(st_ptr[-1], dtype=np.int64)
-    st_w = np.empty((st_ptr[-1], 5))
+    st_w = np.empty((st_ptr[-1], NJET))
     st_x = np.zeros((st_ptr[-1], 2))
-    for i, (nbr, w, c) in enumerate(stencils):
+    st_omega = np.zeros(st_ptr[-1])
+    for i, (nbr, w, c, om) in enumerate(stencils):
         a, b = st_ptr[i], st_ptr[i + 1]
         st_idx[a] = i
         st_w[a] = -w.sum(axis=0)
         st_idx[a + 1:b] = nbr
         st_w[a + 1:b] = w
         st_x[a + 1:b] = c
+        st_omega[a + 1:b] = om / om.sum()
     src = np.repeat(np.arange(n, dtype=np.int64), lens)
     tr_ptr, tr_src, order = csr_from_pairs(st_idx, src, n)
     return JetOperator(frames=frames, st_ptr=st_ptr, st_idx=st_idx, st_w=st_w, st_x=st_x,
-                       tr_ptr=tr_ptr, tr_src=tr_src, tr_slot=order.astype(np.int64),
-                       rings=rings)
+                       st_omega=st_omega, radius=radius, tr_ptr=tr_ptr, tr_src=tr_src,
+                       tr_slot=order.astype(np.int64), rings=rings)
 
 
 # --------------------------------------------------------------------------- kernels
@@ -402,7 +418,7 @@ def compute_geometry(x: np.ndarray, mesh: ClothMesh, jet: JetOperator,
                          f'got {curvature!r}')
     n = x.shape[0]
     coeff = np.empty((n, 5, 3))
-    jet_coefficients(x, jet.st_ptr, jet.st_idx, jet.st_w, coeff)
+    jet_coefficients(x, jet.st_ptr, jet.st_idx, np.ascontiguousarray(jet.st_w[:, :5]), coeff)
     basis = np.empty((n, 3, 3))
     metric = np.empty((n, 2, 2))
     curv = np.empty((n, 2, 2))

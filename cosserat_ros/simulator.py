@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 from . import forces as _forces
-from .constants import CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR
+from .constants import CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILIZATION
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
                        Geometry)
@@ -106,18 +106,20 @@ class ClothSimulator:
         self._ainv = _sym3(np.linalg.inv(rest.metric))
         self._rest_b = _sym3(rest.curvature)
         self._dinv, self._K = self._face_charts()
+        self._stab = np.zeros(n)
         frames = self._jet.frames
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
+                     self._jet.st_w, self._jet.st_x, self._jet.st_omega, self._stab,
+                     self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
         self._cov = (self._rest_a, self._st_T)
-        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 5, 3)),
+        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, self._jet.st_w.shape[1], 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
-                      np.zeros((m, 3, 3)))
+                      np.zeros((m, 3, 3)), np.zeros((len(self._jet.st_idx), 3)), np.zeros(n))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -168,6 +170,10 @@ class ClothSimulator:
 
     def _set_material_arrays(self, material: Material):
         self._mat = np.array([material.zeta, material.xi, material.phi])
+        # jet hourglass control c_i = s xi A_i / h_i^4 (see forces.py), in place: the
+        # compiled operators hold this array
+        self._stab[:] = (JET_STABILIZATION * material.xi * self.mesh.dual_areas
+                         / self._jet.radius ** 4)
         self._mass = material.density * self.mesh.dual_areas
         self._damp = material.damping * self.mesh.dual_areas
         self._vmax = DIVERGENCE_SPEED_FACTOR * material.wave_speed + 100.0
@@ -410,9 +416,9 @@ class ClothSimulator:
         """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
         ``coupling`` and ``total``, each (n,)."""
         self._energy_fields()
-        _, eps, _, _, kap, epsbar, _ = self._work
+        _, eps, _, _, kap, epsbar, _, _, estab = self._work
         out = np.empty((self.mesh.n_vertices, 3))
-        _forces.energy_densities(eps, kap, epsbar, self.mesh.faces, self.mesh.face_areas,
+        _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
                                  self._ainv, *self._mat, out)
         return {'stretching': out[:, 0], 'bending': out[:, 1], 'coupling': out[:, 2],
