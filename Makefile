@@ -36,7 +36,7 @@ run: $(PKG_STAMP)
 	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS)
 
 test: $(PKG_STAMP)
-	$(ENV) $(PY) -m pytest -q test
+	$(ENV) $(VENV)/bin/pytest -q test
 
 validate: $(PKG_STAMP)
 	$(ENV) $(PY) -m cosserat_ros.validate --out docs

@@ -124,7 +124,8 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
 
 
 @nb.njit(cache=True, parallel=True)
-def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_face, vf_corner,
+def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_ptr, vf_face,
+                   vf_corner,
                    eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
                    epsbar, sgrad, estab):
     """Per-vertex bending and coupling: kap, epsbar (n,3), jet stresses J (n,5,3), the
@@ -137,12 +138,13 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_fac
         jt = np.zeros((nc, 3))
         jx = np.zeros((nc, 3))
         _jet(x, st_ptr, st_idx, st_w, i, jt)
-        _jet_residual(x, st_ptr, st_idx, st_x, st_omega, stab[i], i, jt, jx, sgrad, estab)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         n0 = c0 / cn
         n1 = c1 / cn
         n2 = c2 / cn
+        _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, stab[i], i, jt, n0, n1, n2,
+                      cn, jx, sgrad, estab)
         b11 = n0 * jt[2, 0] + n1 * jt[2, 1] + n2 * jt[2, 2]
         b12 = n0 * jt[3, 0] + n1 * jt[3, 1] + n2 * jt[3, 2]
         b22 = n0 * jt[4, 0] + n1 * jt[4, 1] + n2 * jt[4, 2]
@@ -218,31 +220,38 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_fac
 
 
 @nb.njit(cache=True, inline='always')
-def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, cst, i, jt, jx, sgrad, estab):
-    """Hourglass control of the jet: E_s,i = c_i sum_k omega_k |rho_k|^2 with the fit
-    residual rho_k = x_j - x_i - sum_c phi_c(u_k, v_k) coef_c. Writes estab[i], the direct
-    gradient 2 c omega rho at each stencil entry (the centre takes minus their sum) and adds
-    dE_s/dcoef_c = -sum 2 c omega rho phi_c to jx."""
+def _design_row(u, v, ph):
+    ph[0] = u
+    ph[1] = v
+    ph[2] = 0.5 * u * u
+    ph[3] = u * v
+    ph[4] = 0.5 * v * v
+    ph[5] = u * u * u / 6.0
+    ph[6] = 0.5 * u * u * v
+    ph[7] = 0.5 * u * v * v
+    ph[8] = v * v * v / 6.0
+
+
+@nb.njit(cache=True, inline='always')
+def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, cst, i, jt, n0, n1, n2, cn,
+                  jx, sgrad, estab):
+    """Hourglass control of the jet: E_s,i = c_i sum_k omega_k (rho_k . n - sigma_k)^2,
+    rho_k = x_j - x_i - sum_c phi_c(u_k, v_k) coef_c the least-squares residual, sigma_k its
+    rest value along the rest normal (zero on a flat sheet). Rotation invariant, zero at
+    rest, O(h^4) for smooth fields. Writes estab[i] and the direct gradient g_k n at each
+    stencil entry (the centre takes minus their sum) and adds dE_s/dcoef_c to jx (the
+    normal's dependence on a_1, a_2 included)."""
     p0 = st_ptr[i]
     nc = jt.shape[0]
     e = 0.0
-    sc0 = 0.0
-    sc1 = 0.0
-    sc2 = 0.0
+    gs = 0.0
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
     ph = np.zeros(9)
     for k in range(p0 + 1, st_ptr[i + 1]):
         j = st_idx[k]
-        u = st_x[k, 0]
-        v = st_x[k, 1]
-        ph[0] = u
-        ph[1] = v
-        ph[2] = 0.5 * u * u
-        ph[3] = u * v
-        ph[4] = 0.5 * v * v
-        ph[5] = u * u * u / 6.0
-        ph[6] = 0.5 * u * u * v
-        ph[7] = 0.5 * u * v * v
-        ph[8] = v * v * v / 6.0
+        _design_row(st_x[k, 0], st_x[k, 1], ph)
         r0 = x[j, 0] - x[i, 0]
         r1 = x[j, 1] - x[i, 1]
         r2 = x[j, 2] - x[i, 2]
@@ -250,25 +259,63 @@ def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, cst, i, jt, jx, sgrad, esta
             r0 -= ph[c] * jt[c, 0]
             r1 -= ph[c] * jt[c, 1]
             r2 -= ph[c] * jt[c, 2]
+        d = r0 * n0 + r1 * n1 + r2 * n2 - st_sigma[k]
         om = cst * st_omega[k]
-        e += om * (r0 * r0 + r1 * r1 + r2 * r2)
-        g0 = 2.0 * om * r0
-        g1 = 2.0 * om * r1
-        g2 = 2.0 * om * r2
-        sgrad[k, 0] = g0
-        sgrad[k, 1] = g1
-        sgrad[k, 2] = g2
+        e += om * d * d
+        g = 2.0 * om * d
+        sgrad[k, 0] = g * n0
+        sgrad[k, 1] = g * n1
+        sgrad[k, 2] = g * n2
+        gs += g
         for c in range(nc):
-            jx[c, 0] -= ph[c] * g0
-            jx[c, 1] -= ph[c] * g1
-            jx[c, 2] -= ph[c] * g2
-        sc0 -= g0
-        sc1 -= g1
-        sc2 -= g2
-    sgrad[p0, 0] = sc0
-    sgrad[p0, 1] = sc1
-    sgrad[p0, 2] = sc2
+            jx[c, 0] -= ph[c] * g * n0
+            jx[c, 1] -= ph[c] * g * n1
+            jx[c, 2] -= ph[c] * g * n2
+        v0 += g * r0
+        v1 += g * r1
+        v2 += g * r2
+    sgrad[p0, 0] = -gs * n0
+    sgrad[p0, 1] = -gs * n1
+    sgrad[p0, 2] = -gs * n2
     estab[i] = e
+    # v . dn with dn = (I - n n^T) dc / |c|, dc = da_1 x a_2 + a_1 x da_2
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    t0 = (v0 - vn * n0) / cn
+    t1 = (v1 - vn * n1) / cn
+    t2 = (v2 - vn * n2) / cn
+    u0, u1, u2 = _cross(jt[1, 0], jt[1, 1], jt[1, 2], t0, t1, t2)
+    jx[0, 0] += u0
+    jx[0, 1] += u1
+    jx[0, 2] += u2
+    w0, w1, w2 = _cross(t0, t1, t2, jt[0, 0], jt[0, 1], jt[0, 2])
+    jx[1, 0] += w0
+    jx[1, 1] += w1
+    jx[1, 2] += w2
+
+
+@nb.njit(cache=True, parallel=True)
+def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_x, out):
+    """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state)."""
+    n = x.shape[0]
+    nc = st_w.shape[1]
+    for i in nb.prange(n):
+        jt = np.zeros((nc, 3))
+        _jet(x, st_ptr, st_idx, st_w, i, jt)
+        c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
+        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        ph = np.zeros(9)
+        out[st_ptr[i]] = 0.0
+        for k in range(st_ptr[i] + 1, st_ptr[i + 1]):
+            j = st_idx[k]
+            _design_row(st_x[k, 0], st_x[k, 1], ph)
+            d = 0.0
+            cc = (c0 / cn, c1 / cn, c2 / cn)
+            for q in range(3):
+                r = x[j, q] - x[i, q]
+                for c in range(nc):
+                    r -= ph[c] * jt[c, q]
+                d += r * cc[q]
+            out[k] = d
 
 
 @nb.njit(cache=True, parallel=True)
@@ -340,12 +387,12 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st
 def variational_forces(x, ops, mat, work, force):
     """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
     (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
-     st_omega, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+     st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, jstress, cstress, kap, epsbar, fgrad, sgrad, estab = work
     face_strain(x, faces, dinv, F, eps)
-    vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, stab, vf_ptr, vf_face, vf_corner,
-                   eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
+    vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_ptr, vf_face,
+                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
                    epsbar, sgrad, estab)
     face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
     gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w, jstress,
@@ -505,7 +552,7 @@ def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, for
 def covariant_forces(x, ops, cov, mat, cwork, force):
     """Seed-route internal force (n,3) [N] at positions x."""
     (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
-     st_omega, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+     st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     rest_a, st_T = cov
     basis, chris, mres, nres, nvec = cwork
     covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, mat[0], mat[1],

@@ -124,9 +124,9 @@ def cantilever(n_along: int = 40, length: float = 1.0, width: float = 0.25,
                pattern: str = 'regular', seed: int = 2) -> Dict[str, float]:
     """Tip sag of a strip clamped at x = -L/2 (two columns pinned; the clamp is their
     mid-line) and free on its other three edges, under its own weight."""
-    h = length / n_along
+    h = length / (n_along - 0.5)          # spacing: clamp mid-line h/2 in from the end
     n_across = max(2, int(round(width / h)))
-    total = length + 0.5 * h
+    total = n_along * h
     mesh = grid_mesh(n_along, n_across, width=total, height=width, pattern=pattern,
                      seed=seed)
     X = mesh.vertices

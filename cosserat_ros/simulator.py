@@ -107,13 +107,17 @@ class ClothSimulator:
         self._rest_b = _sym3(rest.curvature)
         self._dinv, self._K = self._face_charts()
         self._stab = np.zeros(n)
+        self._st_sigma = np.zeros(len(self._jet.st_idx))
+        _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
+                                     self._jet.st_w, self._jet.st_x, self._st_sigma)
         frames = self._jet.frames
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._jet.st_x, self._jet.st_omega, self._stab,
+                     self._jet.st_w, self._jet.st_x, self._jet.st_omega, self._st_sigma,
+                     self._stab,
                      self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
         self._cov = (self._rest_a, self._st_T)
@@ -506,10 +510,11 @@ class ClothSimulator:
             self._critical_dt = CRITICAL_DT_SAFETY * stability_limit(om, gamma)
         return self._critical_dt
 
-    def max_eigenvalue(self, iterations: int = 60, seed: int = 0) -> float:
-        """omega_max^2 [1/s^2] of the linearised free system at rest (Lanczos, an upper
-        estimate: largest Ritz value plus its residual)."""
-        X = self.mesh.vertices
+    def max_eigenvalue(self, iterations: int = 60, seed: int = 0,
+                       at: Optional[np.ndarray] = None) -> float:
+        """omega_max^2 [1/s^2] of the free system linearised at rest, or at positions
+        ``at`` (Lanczos, an upper estimate: largest Ritz value plus its residual)."""
+        X = self.mesh.vertices if at is None else np.asarray(at, dtype=np.float64)
         n3 = 3 * self.mesh.n_vertices
         minv_sqrt = np.repeat(1.0 / np.sqrt(self._mass), 3)
         h = self.mesh.mean_edge_length
