@@ -24,6 +24,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
+            'cloth_node = cosserat_ros.node:main',
         ],
     },
 )

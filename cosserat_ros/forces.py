@@ -124,10 +124,9 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
 
 
 @nb.njit(cache=True, parallel=True)
-def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_ptr, vf_face,
-                   vf_corner,
-                   eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
-                   epsbar, sgrad, estab):
+def vertex_bending(x, st_ptr, st_idx, st_w, st_ph, st_omega, st_sigma, stab, vf_ptr, vf_face,
+                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress,
+                   cstress, kap, epsbar, sgrad, estab, jets):
     """Per-vertex bending and coupling: kap, epsbar (n,3), jet stresses J (n,5,3), the
     coupling stress Theta kap (n,3) that the faces take up, and the jet-residual
     stabilisation: its energy estab (n,) and direct gradient per stencil entry sgrad (K,3).
@@ -135,15 +134,19 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_p
     n = x.shape[0]
     nc = st_w.shape[1]
     for i in nb.prange(n):
-        jt = np.zeros((nc, 3))
-        jx = np.zeros((nc, 3))
+        jt = jets[i]                 # per-vertex scratch: no allocation in the parallel loop
+        jx = jstress[i]
         _jet(x, st_ptr, st_idx, st_w, i, jt)
+        for c in range(nc):
+            jx[c, 0] = 0.0
+            jx[c, 1] = 0.0
+            jx[c, 2] = 0.0
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         n0 = c0 / cn
         n1 = c1 / cn
         n2 = c2 / cn
-        _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, stab[i], i, jt, n0, n1, n2,
+        _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, stab[i], i, jt, n0, n1, n2,
                       cn, jx, sgrad, estab)
         b11 = n0 * jt[2, 0] + n1 * jt[2, 1] + n2 * jt[2, 2]
         b12 = n0 * jt[3, 0] + n1 * jt[3, 1] + n2 * jt[3, 2]
@@ -183,9 +186,9 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_p
         A = dual_area[i]
         g = (-A * m11, -2.0 * A * m12, -A * m22)
         for c in range(3):
-            jstress[i, 2 + c, 0] = g[c] * n0
-            jstress[i, 2 + c, 1] = g[c] * n1
-            jstress[i, 2 + c, 2] = g[c] * n2
+            jx[2 + c, 0] += g[c] * n0
+            jx[2 + c, 1] += g[c] * n1
+            jx[2 + c, 2] += g[c] * n2
         da10 = 0.0
         da11 = 0.0
         da12 = 0.0
@@ -208,15 +211,12 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_p
             da20 += w0
             da21 += w1
             da22 += w2
-        jstress[i, 0, 0] = da10
-        jstress[i, 0, 1] = da11
-        jstress[i, 0, 2] = da12
-        jstress[i, 1, 0] = da20
-        jstress[i, 1, 1] = da21
-        jstress[i, 1, 2] = da22
-        for c in range(nc):
-            for k in range(3):
-                jstress[i, c, k] = jx[c, k] + (jstress[i, c, k] if c < 5 else 0.0)
+        jx[0, 0] += da10
+        jx[0, 1] += da11
+        jx[0, 2] += da12
+        jx[1, 0] += da20
+        jx[1, 1] += da21
+        jx[1, 2] += da22
 
 
 @nb.njit(cache=True, inline='always')
@@ -233,7 +233,7 @@ def _design_row(u, v, ph):
 
 
 @nb.njit(cache=True, inline='always')
-def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, cst, i, jt, n0, n1, n2, cn,
+def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, n1, n2, cn,
                   jx, sgrad, estab):
     """Hourglass control of the jet: E_s,i = c_i sum_k omega_k (rho_k . n - sigma_k)^2,
     rho_k = x_j - x_i - sum_c phi_c(u_k, v_k) coef_c the least-squares residual, sigma_k its
@@ -248,10 +248,9 @@ def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, cst, i, jt, n0, n
     v0 = 0.0
     v1 = 0.0
     v2 = 0.0
-    ph = np.zeros(9)
     for k in range(p0 + 1, st_ptr[i + 1]):
         j = st_idx[k]
-        _design_row(st_x[k, 0], st_x[k, 1], ph)
+        ph = st_ph[k]
         r0 = x[j, 0] - x[i, 0]
         r1 = x[j, 1] - x[i, 1]
         r2 = x[j, 2] - x[i, 2]
@@ -291,6 +290,14 @@ def _jet_residual(x, st_ptr, st_idx, st_x, st_omega, st_sigma, cst, i, jt, n0, n
     jx[1, 0] += w0
     jx[1, 1] += w1
     jx[1, 2] += w2
+
+
+def design_rows(st_x: np.ndarray) -> np.ndarray:
+    """phi_c(u, v) of every stencil entry, (K, 9): u, v, u^2/2, uv, v^2/2, u^3/6,
+    u^2 v/2, u v^2/2, v^3/6 (the columns of the jet fit)."""
+    u, v = st_x[:, 0], st_x[:, 1]
+    return np.ascontiguousarray(np.stack([u, v, 0.5 * u * u, u * v, 0.5 * v * v, u ** 3 / 6,
+                                          0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6], 1))
 
 
 @nb.njit(cache=True, parallel=True)
@@ -386,14 +393,14 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st
 @nb.njit(cache=True)
 def variational_forces(x, ops, mat, work, force):
     """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
      st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
-    F, eps, jstress, cstress, kap, epsbar, fgrad, sgrad, estab = work
+    F, eps, jstress, cstress, kap, epsbar, fgrad, sgrad, estab, jets = work
     face_strain(x, faces, dinv, F, eps)
-    vertex_bending(x, st_ptr, st_idx, st_w, st_x, st_omega, st_sigma, stab, vf_ptr, vf_face,
-                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress, cstress, kap,
-                   epsbar, sgrad, estab)
+    vertex_bending(x, st_ptr, st_idx, st_w, st_ph, st_omega, st_sigma, stab, vf_ptr, vf_face,
+                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress,
+                   cstress, kap, epsbar, sgrad, estab, jets)
     face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
     gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w, jstress,
                   sgrad, force)
@@ -551,7 +558,7 @@ def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, for
 @nb.njit(cache=True)
 def covariant_forces(x, ops, cov, mat, cwork, force):
     """Seed-route internal force (n,3) [N] at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_x,
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
      st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
     rest_a, st_T = cov
     basis, chris, mres, nres, nvec = cwork

@@ -108,6 +108,7 @@ class ClothSimulator:
         self._dinv, self._K = self._face_charts()
         self._stab = np.zeros(n)
         self._st_sigma = np.zeros(len(self._jet.st_idx))
+        self._st_ph = _forces.design_rows(self._jet.st_x)
         _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
                                      self._jet.st_w, self._jet.st_x, self._st_sigma)
         frames = self._jet.frames
@@ -116,14 +117,15 @@ class ClothSimulator:
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._jet.st_x, self._jet.st_omega, self._st_sigma,
+                     self._jet.st_w, self._st_ph, self._jet.st_omega, self._st_sigma,
                      self._stab,
                      self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
         self._cov = (self._rest_a, self._st_T)
         self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, self._jet.st_w.shape[1], 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
-                      np.zeros((m, 3, 3)), np.zeros((len(self._jet.st_idx), 3)), np.zeros(n))
+                      np.zeros((m, 3, 3)), np.zeros((len(self._jet.st_idx), 3)), np.zeros(n),
+                      np.zeros((n, self._jet.st_w.shape[1], 3)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -420,7 +422,7 @@ class ClothSimulator:
         """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
         ``coupling`` and ``total``, each (n,)."""
         self._energy_fields()
-        _, eps, _, _, kap, epsbar, _, _, estab = self._work
+        _, eps, _, _, kap, epsbar, _, _, estab, _ = self._work
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,

@@ -1,0 +1,269 @@
+"""cloth_node in-process: parameters, force commands, bad input, divergence, services.
+
+Each test owns an explicit rclpy Context, a ClothNode on a small mesh and a second node
+with real publishers/subscribers, all spun by one executor in this process.
+"""
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Vector3Stamped
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+from cosserat_ros.node import ClothNode, ConfigError, pin_set
+
+N = 8
+OVERRIDES = {'mesh.nx': N, 'mesh.ny': N, 'publish_rate': 50.0, 'status_period': 0.0,
+             'force_timeout': 0.0, 'dt': 2e-4}
+
+
+class Harness:
+    def __init__(self, **params):
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        over = dict(OVERRIDES, **params)
+        self.node = ClothNode(context=self.ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in over.items()])
+        self.peer = rclpy.create_node('peer', context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.peer)
+        self.meshes, self.energies, self.diags = [], [], []
+        self.peer.create_subscription(MarkerArray, '/cloth_node/mesh', self.meshes.append, 10)
+        self.peer.create_subscription(DiagnosticArray, '/cloth_node/energy',
+                                      self.energies.append, 10)
+        self.peer.create_subscription(DiagnosticArray, '/diagnostics', self.diags.append, 10)
+        self.pubs = {
+            'vertex': self.peer.create_publisher(Float64MultiArray, '/cloth_node/vertex_forces',
+                                                 10),
+            'point': self.peer.create_publisher(Float64MultiArray, '/cloth_node/point_forces',
+                                                10),
+            'field': self.peer.create_publisher(Vector3Stamped, '/cloth_node/force_field', 10)}
+
+    def spin(self, seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.ex.spin_once(timeout_sec=0.01)
+
+    def spin_until(self, cond, timeout=10.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and not cond():
+            self.ex.spin_once(timeout_sec=0.01)
+        return cond()
+
+    def send(self, kind, msg):
+        self.pubs[kind].publish(msg)
+        self.spin(0.15)
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.peer.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def h():
+    harness = Harness()
+    assert harness.spin_until(lambda: len(harness.meshes) > 0, 30), 'no mesh published'
+    yield harness
+    harness.close()
+
+
+def rows(data, width=None, dims=None):
+    m = Float64MultiArray()
+    m.data = [float(v) for v in np.ravel(data)]
+    if dims:
+        m.layout.dim = [MultiArrayDimension(label=l, size=s, stride=0) for l, s in dims]
+    return m
+
+
+def field(v, frame='world'):
+    m = Vector3Stamped()
+    m.header.frame_id = frame
+    m.vector.x, m.vector.y, m.vector.z = map(float, v)
+    return m
+
+
+def test_publishes_mesh_energy_and_diagnostics(h):
+    assert h.spin_until(lambda: len(h.diags) > 0 and len(h.energies) > 3, 10)
+    marker = h.meshes[-1].markers[0]
+    assert len(marker.points) == 3 * h.node.mesh.n_faces
+    assert marker.header.frame_id == 'world'
+    e = h.energies[-1]
+    st = e.status[0]
+    assert st.name == 'energy' and st.level == DiagnosticStatus.OK
+    vals = {kv.key: kv.value for kv in st.values}
+    for key in ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'external_work',
+                'dissipated', 'total', 'sim_time', 'step'):
+        assert key in vals
+    assert float(vals['sim_time']) == pytest.approx(
+        e.header.stamp.sec + 1e-9 * e.header.stamp.nanosec, abs=1e-9)
+    diag = {kv.key: kv.value for kv in h.diags[-1].status[0].values}
+    for key in ('real_time_factor', 'step_cost_ms', 'dt', 'critical_dt', 'vertices',
+                'rejected_vertex_forces'):
+        assert key in diag
+    assert int(diag['vertices']) == (N + 1) ** 2
+
+
+def test_parameters_validated_and_applied(h):
+    ok = h.node.set_parameters([Parameter('material.zeta', value=80.0),
+                                Parameter('gravity', value=[0.0, 0.0, -1.0]),
+                                Parameter('coloring', value='speed')])
+    assert all(r.successful for r in ok)
+    assert h.node.sim.material.zeta == 80.0 and h.node.sim.gravity[2] == -1.0
+    for name, value, why in (
+            ('material.zeta', -5.0, ''),                 # outside the descriptor's range
+            ('material.xi', float('nan'), ''),
+            ('material.phi', 1.0, 'indefinite'),
+            ('dt', 0.5, 'critical step'),
+            ('gravity', [0.0, 1.0], '3 finite numbers'),
+            ('coloring', 'rainbow', 'coloring must be one of'),
+            ('mesh.nx', 20, '')):                          # read-only
+        res = h.node.set_parameters([Parameter(name, value=value)])[0]
+        assert not res.successful, name
+        assert why in res.reason
+    assert h.node.sim.material.zeta == 80.0
+
+
+def _steps(h):
+    return h.node.sim.step_count
+
+
+def test_bad_commands_rejected_and_simulation_keeps_running(h):
+    n = h.node.mesh.n_vertices
+    bad = [('vertex', rows([0, 1, 2])),                                   # not rows of 4
+           ('vertex', rows([0, np.nan, 0, 1])),
+           ('vertex', rows([0, np.inf, 0, 1])),
+           ('vertex', rows([n, 0, 0, 1])),                                # index too large
+           ('vertex', rows([-1, 0, 0, 1])),
+           ('vertex', rows([1.5, 0, 0, 1])),                              # not an integer
+           ('vertex', rows([3, 0, 0, 1e6])),                              # above max_force
+           ('vertex', rows([3, 0, 0, 1, 4, 0, 0, 1], dims=[('rows', 3), ('cols', 4)])),
+           ('point', rows([0, 0, 0, 0, 0])),
+           ('point', rows([0, 0, np.nan, 0, 0, 1])),
+           ('point', rows([0, 0, 0, 0, 0, 1e9])),
+           ('field', field([0, 0, 1], frame='map')),
+           ('field', field([np.nan, 0, 0])),
+           ('field', field([1e6, 0, 0]))]
+    before = _steps(h)
+    for kind, msg in bad:
+        h.send(kind, msg)
+    assert sum(h.node.rejected.values()) == len(bad)
+    assert h.node.rejected == {'vertex_forces': 8, 'point_forces': 3, 'force_field': 3}
+    assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
+    assert _steps(h) > before
+    # a flood at kHz rates: all counted, nothing breaks
+    for _ in range(500):
+        h.pubs['vertex'].publish(rows([0, np.nan, 0, 0]))
+    h.spin(1.0)
+    assert h.node.rejected['vertex_forces'] > 8
+    before = _steps(h)
+    h.spin(0.5)
+    assert _steps(h) > before and h.node.diverged is None
+    assert h.spin_until(lambda: any(
+        int({kv.key: kv.value for kv in d.status[0].values}['rejected_total']) > 0
+        for d in h.diags), 5)
+
+
+def test_forces_move_the_cloth_and_lapse(h):
+    centre = (N // 2) * (N + 1) + N // 2
+    z0 = h.node.sim.positions[centre, 2]
+    h.node.set_parameters([Parameter('gravity', value=[0.0, 0.0, 0.0])])
+    h.send('vertex', rows([centre, 0, 0, 2.0], dims=[('rows', 1), ('cols', 4)]))
+    h.spin(0.5)
+    assert h.node.sim.vertex_forces[centre, 2] == 2.0
+    assert h.node.sim.positions[centre, 2] > z0 + 1e-4
+    # point forces go to the closest point of the surface, shared barycentrically
+    x = h.node.sim.positions
+    h.send('point', rows([x[centre, 0], x[centre, 1], x[centre, 2] + 0.05, 0, 0, 1.0]))
+    assert h.node.sim.vertex_forces.sum(axis=0)[2] == pytest.approx(3.0)
+    h.send('field', field([0.0, 0.0, 0.5]))
+    assert h.node.sim.force_field[2] == 0.5
+    h.send('vertex', rows([]))                                         # empty = clear
+    assert h.node.sim.vertex_forces.sum(axis=0)[2] == pytest.approx(1.0)
+    h.node.set_parameters([Parameter('force_timeout', value=0.3)])
+    h.spin(0.8)
+    assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
+
+
+def test_divergence_pauses_reports_and_reset_recovers(h):
+    h.node.sim.dt = 20 * h.node.sim.critical_dt()     # behind the validator's back
+    h.node.sim.set_velocities(np.random.default_rng(0).standard_normal(
+        (h.node.mesh.n_vertices, 3)))
+    assert h.spin_until(lambda: h.node.diverged is not None, 10)
+    assert h.node.paused
+    h.meshes.clear()
+    h.energies.clear()
+    h.spin(0.3)
+    assert h.energies and h.energies[-1].status[0].level == DiagnosticStatus.ERROR
+    for m in h.meshes:
+        assert np.all(np.isfinite([[p.x, p.y, p.z] for p in m.markers[0].points]))
+    assert h.spin_until(lambda: any(d.status[0].level == DiagnosticStatus.ERROR
+                                    for d in h.diags), 5)
+    h.node.sim.dt = 2e-4
+    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
+    fut = cli.call_async(SetBool.Request(data=False))
+    h.spin_until(fut.done)
+    assert not fut.result().success and 'reset' in fut.result().message
+    cli = h.peer.create_client(Trigger, '/cloth_node/reset')
+    fut = cli.call_async(Trigger.Request())
+    h.spin_until(fut.done)
+    assert fut.result().success
+    assert h.node.diverged is None and not h.node.paused
+    before = _steps(h)
+    h.spin(0.3)
+    assert _steps(h) > before
+
+
+def test_pause_service(h):
+    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
+    fut = cli.call_async(SetBool.Request(data=True))
+    h.spin_until(fut.done)
+    assert fut.result().success
+    t = h.node.sim.time
+    h.spin(0.3)
+    assert h.node.sim.time == t
+    fut = cli.call_async(SetBool.Request(data=False))
+    h.spin_until(fut.done)
+    h.spin(0.3)
+    assert h.node.sim.time > t
+
+
+@pytest.mark.parametrize('params, match', [
+    ({'mesh.pattern': 'hexagonal'}, 'mesh.pattern must be one of'),
+    ({'mesh.file': '/nonexistent/cloth.obj'}, 'mesh file not found'),
+    ({'dt': 0.01}, 'exceeds the critical step'),
+    ({'material.zeta': -1.0}, 'material.zeta'),
+    ({'material.phi': 1.0}, 'indefinite'),
+    ({'pinned.sets': ['middle']}, 'pinned.sets'),
+    ({'pinned.indices': [10000]}, 'pinned.indices'),
+    ({'coloring': 'rainbow'}, 'coloring'),
+    ({'gravity': [0.0, 9.81]}, 'gravity'),
+    ({'material.zeta': 100}, 'material.zeta'),            # an integer where a float is due
+])
+def test_bad_startup_parameters_are_refused(params, match):
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ConfigError, match=match):
+            ClothNode(context=ctx, parameter_overrides=[
+                Parameter(k, value=v) for k, v in dict(OVERRIDES, **params).items()])
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_named_pin_sets():
+    from cosserat_ros.mesh import grid_mesh
+    m = grid_mesh(4, 3)
+    assert sorted(pin_set(m, 'top_corners')) == [15, 19]
+    assert sorted(pin_set(m, 'corners')) == [0, 4, 15, 19]
+    assert sorted(pin_set(m, 'left_edge')) == [0, 5, 10, 15]
+    assert len(pin_set(m, 'boundary')) == 14 and len(pin_set(m, 'none')) == 0

@@ -1,0 +1,178 @@
+"""cloth_node as a separate process, started exactly as ``ros2 run`` starts it: the package
+prefix from the ament index, then ``<prefix>/lib/cosserat_ros/cloth_node --ros-args ...``."""
+import os
+import signal
+import subprocess
+import time
+
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rcl_interfaces.srv import SetParameters
+from diagnostic_msgs.msg import DiagnosticArray
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+RATE = 20.0
+
+
+def ros2_run(package, executable, *args):
+    """What ``ros2 run package executable args`` executes."""
+    exe = os.path.join(get_package_prefix(package), 'lib', package, executable)
+    assert os.access(exe, os.X_OK), exe
+    return [exe, *args]
+
+
+def start(params_file, **kw):
+    return subprocess.Popen(ros2_run('cosserat_ros', 'cloth_node', '--ros-args',
+                                     '--params-file', str(params_file)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+PARAMS = f"""cloth_node:
+  ros__parameters:
+    mesh: {{nx: 12, ny: 12, pattern: alternating}}
+    material: {{zeta: 50.0, xi: 2.0e-5, phi: 1.0e-6, density: 0.2, damping: 0.1}}
+    dt: 2.0e-4
+    publish_rate: {RATE}
+    gravity: [0.0, 0.0, -9.81]
+    pinned: {{sets: [top_corners]}}
+    force_timeout: 0.0
+"""
+
+
+def test_installed_config_files_are_shipped():
+    share = get_package_share_directory('cosserat_ros')
+    assert os.path.isfile(os.path.join(share, 'config', 'cloth.yaml'))
+    assert os.path.isfile(os.path.join(share, 'package.xml'))
+
+
+@pytest.fixture
+def client():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('test_client', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    yield node, ex
+    ex.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=ctx)
+
+
+def spin_until(ex, cond, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and not cond():
+        ex.spin_once(timeout_sec=0.02)
+    return cond()
+
+
+def call(node, ex, srv_type, name, request):
+    cli = node.create_client(srv_type, name)
+    assert cli.wait_for_service(timeout_sec=10.0), name
+    fut = cli.call_async(request)
+    assert spin_until(ex, fut.done, 10.0), name
+    return fut.result()
+
+
+def sim_time(energy):
+    return float({kv.key: kv.value for kv in energy.status[0].values}['sim_time'])
+
+
+def test_node_process_end_to_end(tmp_path, client):
+    node, ex = client
+    params = tmp_path / 'cloth.yaml'
+    params.write_text(PARAMS)
+    meshes, energies, diags = [], [], []
+    node.create_subscription(MarkerArray, '/cloth_node/mesh',
+                             lambda m: meshes.append((time.monotonic(), m)), 10)
+    node.create_subscription(DiagnosticArray, '/cloth_node/energy', energies.append, 10)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    push = node.create_publisher(Float64MultiArray, '/cloth_node/vertex_forces', 10)
+    proc = start(params)
+    try:
+        assert spin_until(ex, lambda: len(meshes) >= 3, 90.0), proc.stderr.read() \
+            if proc.poll() is not None else 'no mesh from cloth_node'
+        # rate: mesh and energy at the configured rate
+        meshes.clear()
+        energies.clear()
+        spin_until(ex, lambda: False, 2.0)
+        assert len(meshes) >= 0.7 * 2.0 * RATE, len(meshes)
+        assert len(energies) >= 0.7 * 2.0 * RATE, len(energies)
+        assert len(meshes[-1][1].markers[0].points) == 3 * 2 * 12 * 12
+        # push the cloth: the centre vertex feels 2 N upward and the external work grows
+        centre = 6 * 13 + 6
+        msg = Float64MultiArray()
+        msg.data = [float(centre), 0.0, 0.0, 2.0]
+        for _ in range(20):
+            push.publish(msg)
+            spin_until(ex, lambda: False, 0.05)
+        spin_until(ex, lambda: False, 0.5)
+        work = float({kv.key: kv.value for kv in energies[-1].status[0].values}[
+            'external_work'])
+        assert work > 1e-4
+        # pause: sim time stops; resume: it moves again; reset: back to t = 0
+        assert call(node, ex, SetBool, '/cloth_node/pause', SetBool.Request(data=True)).success
+        spin_until(ex, lambda: False, 0.3)
+        t1 = sim_time(energies[-1])
+        spin_until(ex, lambda: False, 0.5)
+        assert sim_time(energies[-1]) == t1
+        assert call(node, ex, SetBool, '/cloth_node/pause', SetBool.Request(data=False)).success
+        spin_until(ex, lambda: False, 0.5)
+        assert sim_time(energies[-1]) > t1
+        assert call(node, ex, Trigger, '/cloth_node/reset', Trigger.Request()).success
+        energies.clear()
+        spin_until(ex, lambda: len(energies) > 0, 2.0)
+        assert sim_time(energies[0]) < 0.2
+        # run-time parameters: a good value is taken, a bad one refused with the reason
+        req = SetParameters.Request()
+        req.parameters = [Parameter('material.zeta', value=60.0).to_parameter_msg()]
+        assert call(node, ex, SetParameters, '/cloth_node/set_parameters', req).results[0]\
+            .successful
+        req.parameters = [Parameter('material.phi', value=10.0).to_parameter_msg()]
+        res = call(node, ex, SetParameters, '/cloth_node/set_parameters', req).results[0]
+        assert not res.successful and 'indefinite' in res.reason
+        assert spin_until(ex, lambda: len(diags) > 0, 5.0)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out
+
+
+def test_sigterm_stops_cleanly(tmp_path, client):
+    node, ex = client
+    params = tmp_path / 'cloth.yaml'
+    params.write_text(PARAMS)
+    got = []
+    node.create_subscription(MarkerArray, '/cloth_node/mesh', got.append, 10)
+    proc = start(params)
+    try:
+        assert spin_until(ex, lambda: len(got) > 0, 90.0)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out
+
+
+@pytest.mark.parametrize('text, match', [
+    (PARAMS.replace('pattern: alternating', 'pattern: hexagonal'), 'mesh.pattern'),
+    (PARAMS.replace('dt: 2.0e-4', 'dt: 1.0e-2'), 'critical step'),
+    (PARAMS.replace('zeta: 50.0', 'zeta: -50.0'), 'material.zeta'),
+    ('cloth_node:\n  ros__parameters:\n    mesh: {nx: [\n', ''),          # broken YAML
+])
+def test_bad_params_file_fails_with_one_line(tmp_path, text, match):
+    params = tmp_path / 'bad.yaml'
+    params.write_text(text)
+    proc = start(params)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    assert 'Traceback' not in err + out
+    lines = [ln for ln in err.strip().splitlines() if 'error' in ln.lower()]
+    assert lines and match in lines[-1], err
