@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import os
 import sys
 import time
 from typing import Dict, List, Optional, Tuple
@@ -248,10 +249,23 @@ class ClothNode(Node):
                               'of this mesh and material (the membrane wave speed over the '
                               'shortest edge limits it): lower dt, zeta or the resolution')
 
+    @staticmethod
+    def _mesh_path(path: str) -> str:
+        """A relative path resolves against the working directory, then against the
+        package's installed share directory (so configs can name config/meshes/...)."""
+        if os.path.isabs(path) or os.path.exists(path):
+            return path
+        try:
+            from ament_index_python.packages import get_package_share_directory
+            shared = os.path.join(get_package_share_directory('cosserat_ros'), path)
+        except Exception:       # package not installed through an ament index
+            return path
+        return shared if os.path.exists(shared) else path
+
     def _build_mesh(self, p):
         try:
             if p['mesh.file']:
-                return load_mesh(p['mesh.file'])
+                return load_mesh(self._mesh_path(p['mesh.file']))
             self._check_choice(p['mesh.pattern'], GRID_PATTERNS, 'mesh.pattern')
             return grid_mesh(p['mesh.nx'], p['mesh.ny'], p['mesh.width'], p['mesh.height'],
                              p['mesh.pattern'], p['mesh.seed'])

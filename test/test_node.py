@@ -267,3 +267,22 @@ def test_named_pin_sets():
     assert sorted(pin_set(m, 'corners')) == [0, 4, 15, 19]
     assert sorted(pin_set(m, 'left_edge')) == [0, 5, 10, 15]
     assert len(pin_set(m, 'boundary')) == 14 and len(pin_set(m, 'none')) == 0
+
+
+@pytest.mark.parametrize('config', ['cloth.yaml', 'flag.yaml', 'dome.yaml', 'membrane.yaml'])
+def test_shipped_configs_start_and_step(config):
+    from ament_index_python.packages import get_package_share_directory
+    path = f'{get_package_share_directory("cosserat_ros")}/config/{config}'
+    ctx = Context()
+    rclpy.init(context=ctx, args=['--ros-args', '--params-file', path])
+    node = ClothNode(context=ctx)
+    try:
+        assert node.sim.dt <= node.sim.critical_dt()
+        assert node.sim.pinned.any()
+        for _ in range(5):
+            node.tick()
+        assert node.diverged is None and node.sim.step_count > 0
+        assert np.all(np.isfinite(node.sim.positions))
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
