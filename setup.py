@@ -25,6 +25,8 @@ setup(
     entry_points={
         'console_scripts': [
             'cloth_node = cosserat_ros.node:main',
+            'record = cosserat_ros.record:main',
+            'render = cosserat_ros.render:main',
         ],
     },
 )

@@ -537,9 +537,9 @@ class ClothNode(Node):
             out = np.empty((n, 4), dtype=np.float32)
             out[:] = (0.55, 0.65, 0.85, 1.0)
             return out
-        if self._coloring == 'energy':
+        if self._coloring == 'energy':       # 98th percentile: pins would saturate a max
             v = self._densities['total']
-            return colormap(v, 0.0, max(float(v.max()), 1e-12))
+            return colormap(v, 0.0, max(float(np.percentile(v, 98)), 1e-12))
         if self._coloring == 'speed':
             v = np.linalg.norm(self.sim.velocities, axis=1)
             return colormap(v, 0.0, max(float(v.max()), 1e-9))

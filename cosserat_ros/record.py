@@ -1,0 +1,260 @@
+"""``record``: write the cloth's topics to a rosbag2 directory (MCAP storage, Jazzy default).
+
+    record -o DIR [--duration S] [--node cloth_node] [TOPIC ...]
+
+Default topics: the node's ``~/mesh`` and ``~/energy``, ``/diagnostics``, and ``/clock`` when
+it is published. Messages are subscribed with their real types and written as the
+serialised bytes that arrive (no deserialise / re-serialise round trip), stamped with their
+receive time, through the ``rosbags`` library (``metadata.yaml`` plus ``DIR/DIR.mcap``), so
+``ros2 bag info``, ``ros2 bag play`` and Foxglove open the result.
+
+Safety: an existing DIR is never overwritten or appended to; SIGINT, SIGTERM and the end of
+``--duration`` flush and close the bag; every completed 1 MiB chunk is flushed to disk at
+once, so a bag cut off by a crash keeps everything up to its last complete chunk
+(``record --recover DIR`` then writes the missing ``metadata.yaml``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+from pathlib import Path
+import sys
+import time
+from typing import Dict, List
+
+__all__ = ['main', 'recover', 'DEFAULT_TOPICS']
+
+DEFAULT_TOPICS = ('~/mesh', '~/energy', '/diagnostics', '/clock')
+
+
+def message_class(type_name: str):
+    """'visualization_msgs/msg/MarkerArray' -> the rclpy message class."""
+    pkg, kind, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+
+
+def resolve(topic: str, node_name: str) -> str:
+    if topic.startswith('~/'):
+        return f'/{node_name}/{topic[2:]}'
+    return topic if topic.startswith('/') else '/' + topic
+
+
+class _Bag:
+    """A rosbags Writer that flushes each completed chunk to disk."""
+
+    def __init__(self, path: Path):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import get_typestore, Stores
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections: Dict[str, object] = {}
+        self.counts: Dict[str, int] = {}
+        self._chunks = 0
+
+    def add(self, topic: str, type_name: str, qos_profiles=()):
+        self.connections[topic] = self.writer.add_connection(topic, type_name,
+                                                             typestore=self.typestore)
+        self.counts[topic] = 0
+
+    def write(self, topic: str, stamp_ns: int, data: bytes):
+        self.writer.write(self.connections[topic], stamp_ns, data)
+        self.counts[topic] += 1
+        storage = getattr(self.writer, 'storage', None)
+        chunks = len(getattr(storage, 'chunks', ()))
+        if chunks != self._chunks:            # a chunk was completed: make it durable
+            self._chunks = chunks
+            storage.bio.flush()
+            os.fsync(storage.bio.fileno())
+
+    def close(self):
+        self.writer.close()
+
+
+def scan_mcap(path: Path):
+    """Messages of an MCAP file up to its last complete record, tolerating a torn tail.
+
+    Yields (topic, msgtype, log_time_ns, data). Reads the top-level records (op, uint64
+    length, body) and the schema (0x03), channel (0x04) and message (0x05) records inside
+    uncompressed chunks (0x06), which is what this recorder writes."""
+    import struct
+
+    def u16(b, o):
+        return struct.unpack_from('<H', b, o)[0], o + 2
+
+    def u32(b, o):
+        return struct.unpack_from('<I', b, o)[0], o + 4
+
+    def u64(b, o):
+        return struct.unpack_from('<Q', b, o)[0], o + 8
+
+    def string(b, o):
+        n, o = u32(b, o)
+        return b[o:o + n].decode(), o + n
+
+    data = Path(path).read_bytes()
+    if not data.startswith(b'\x89MCAP0\r\n'):
+        raise SystemExit(f'record: {path} is not an MCAP file')
+    schemas, channels = {}, {}
+
+    def records(buf, off, end):
+        while off + 9 <= end:
+            op = buf[off]
+            size, body = u64(buf, off + 1)
+            if body + size > end:
+                return                        # torn record: stop at the last complete one
+            yield op, buf, body, body + size
+            off = body + size
+
+    def handle(op, buf, o, end):
+        if op == 0x03:
+            sid, o = u16(buf, o)
+            name, o = string(buf, o)
+            schemas[sid] = name
+        elif op == 0x04:
+            cid, o = u16(buf, o)
+            sid, o = u16(buf, o)
+            topic, o = string(buf, o)
+            channels[cid] = (topic, schemas.get(sid, ''))
+        elif op == 0x05:
+            cid, o = u16(buf, o)
+            _, o = u32(buf, o)
+            log_time, o = u64(buf, o)
+            _, o = u64(buf, o)
+            if cid in channels:
+                return channels[cid] + (log_time, bytes(buf[o:end]))
+        return None
+
+    for op, buf, o, end in records(data, 8, len(data)):
+        if op == 0x06:
+            _, o = u64(buf, o)
+            _, o = u64(buf, o)
+            _, o = u64(buf, o)
+            _, o = u32(buf, o)
+            comp, o = string(buf, o)
+            size, o = u64(buf, o)
+            if comp:
+                raise SystemExit(f'record: cannot recover compressed ({comp}) chunks')
+            for iop, ibuf, io, iend in records(buf, o, o + size):
+                msg = handle(iop, ibuf, io, iend)
+                if msg:
+                    yield msg
+        else:
+            msg = handle(op, buf, o, end)
+            if msg:
+                yield msg
+
+
+def recover(path: Path) -> int:
+    """Rebuild a bag whose recorder was killed: every message of its complete chunks is
+    rewritten into a valid rosbag2 directory (the torn file is kept as ``*.mcap.partial``)."""
+    import shutil
+    path = Path(path)
+    mcap = path / f'{path.name}.mcap'
+    if (path / 'metadata.yaml').exists():
+        print(f'record: error: {path} already has metadata.yaml; nothing to recover',
+              file=sys.stderr)
+        return 2
+    if not mcap.exists():
+        print(f'record: error: {mcap} not found', file=sys.stderr)
+        return 2
+    tmp = path.parent / f'.{path.name}.recovering'
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    bag = _Bag(tmp)
+    for topic, msgtype, stamp, data in scan_mcap(mcap):
+        if topic not in bag.connections:
+            bag.add(topic, msgtype)
+        bag.write(topic, stamp, data)
+    bag.close()
+    mcap.rename(path / f'{path.name}.mcap.partial')
+    (tmp / f'{tmp.name}.mcap').rename(mcap)
+    meta = (tmp / 'metadata.yaml').read_text().replace(f'{tmp.name}.mcap', mcap.name)
+    (path / 'metadata.yaml').write_text(meta)
+    shutil.rmtree(tmp)
+    total = sum(bag.counts.values())
+    print(f'record: recovered {total} messages into {path} '
+          f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())})')
+    return 0
+
+
+def main(argv: List[str] = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    args_ros = rclpy.utilities.remove_ros_args(['record'] + list(argv))[1:]
+    ap = argparse.ArgumentParser(prog='record', description='Record the cloth to a rosbag2 '
+                                 'directory (MCAP).')
+    ap.add_argument('topics', nargs='*', help=f'topics (default: {" ".join(DEFAULT_TOPICS)})')
+    ap.add_argument('-o', '--output', help='bag directory to create (must not exist)')
+    ap.add_argument('--duration', type=float, default=0.0, help='stop after S seconds')
+    ap.add_argument('--node', default='cloth_node', help='node whose ~/ topics to record')
+    ap.add_argument('--wait', type=float, default=30.0,
+                    help='seconds to wait for the topics to appear')
+    ap.add_argument('--recover', metavar='DIR', help='write metadata.yaml for a bag cut off '
+                    'by a crash, then exit')
+    a = ap.parse_args(args_ros)
+    if a.recover:
+        return recover(Path(a.recover))
+    if not a.output:
+        ap.error('-o/--output is required')
+    out = Path(a.output)
+    if out.exists():
+        print(f'record: error: {out} already exists; bags are never overwritten or appended '
+              'to, choose a new directory', file=sys.stderr)
+        return 2
+    if a.duration < 0:
+        print('record: error: --duration must be >= 0', file=sys.stderr)
+        return 2
+    requested = [resolve(t, a.node) for t in (a.topics or DEFAULT_TOPICS)]
+    optional = set() if a.topics else {'/clock'}
+    rclpy.init(args=['record'] + list(argv))
+    node = rclpy.create_node('cloth_recorder')
+    bag = None
+    code = 0
+    try:
+        deadline = time.monotonic() + a.wait
+        types: Dict[str, str] = {}
+        while time.monotonic() < deadline:
+            graph = dict(node.get_topic_names_and_types())
+            types = {t: graph[t][0] for t in requested if t in graph}
+            if all(t in types for t in requested if t not in optional):
+                break
+            rclpy.spin_once(node, timeout_sec=0.1)
+        missing = [t for t in requested if t not in types and t not in optional]
+        if missing:
+            print(f'record: error: no publisher of {", ".join(missing)} after {a.wait:g} s',
+                  file=sys.stderr)
+            return 2
+        bag = _Bag(out)
+        for topic, type_name in types.items():
+            bag.add(topic, type_name)
+            infos = node.get_publishers_info_by_topic(topic)
+            latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                          for i in infos)
+            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                             else DurabilityPolicy.VOLATILE)
+            node.create_subscription(
+                message_class(type_name), topic,
+                lambda data, t=topic: bag.write(t, time.time_ns(), data), qos, raw=True)
+        node.get_logger().info(f'recording {", ".join(types)} to {out}')
+        end = time.monotonic() + a.duration if a.duration > 0 else None
+        while rclpy.ok() and (end is None or time.monotonic() < end):
+            rclpy.spin_once(node, timeout_sec=0.05)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if bag is not None:
+            bag.close()
+            print(f'record: wrote {sum(bag.counts.values())} messages to {out} '
+                  f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())})')
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

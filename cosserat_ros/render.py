@@ -1,0 +1,210 @@
+"""``render``: pictures of a recorded (or live) cloth, offscreen, without RViz.
+
+    render BAG -o OUT [--times T ...] [--frames N] [--node cloth_node]
+    render --live SECONDS -o OUT            # subscribe to the running node instead
+
+Writes into OUT: ``cloth_<t>s.png`` (shaded, coloured like the marker, one per chosen
+simulation time; default first, middle and last), ``cloth.gif`` (and ``cloth.mp4`` when
+ffmpeg is on the PATH), and ``energy.png`` (every energy term against simulation time).
+Uses matplotlib's Agg backend: no display needed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import shutil
+import sys
+import time
+from typing import List, Tuple
+
+import matplotlib
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+import numpy as np  # noqa: E402
+
+__all__ = ['main', 'read_bag', 'render_frame', 'energy_plot']
+
+ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'total',
+               'external_work', 'dissipated')
+
+
+def _decode_mesh(raw: bytes) -> Tuple[float, np.ndarray, np.ndarray]:
+    """(sim time [s], triangles (m, 3, 3), corner colours (m, 3, 4)) of a MarkerArray."""
+    from rclpy.serialization import deserialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+    msg = deserialize_message(raw, MarkerArray)
+    tri = next(m for m in msg.markers if m.type == Marker.TRIANGLE_LIST)
+    pts = np.array([(p.x, p.y, p.z) for p in tri.points]).reshape(-1, 3, 3)
+    if tri.colors:
+        col = np.array([(c.r, c.g, c.b, c.a) for c in tri.colors]).reshape(-1, 3, 4)
+    else:
+        col = np.tile([tri.color.r, tri.color.g, tri.color.b, tri.color.a], (len(pts), 3, 1))
+    return tri.header.stamp.sec + 1e-9 * tri.header.stamp.nanosec, pts, col
+
+
+def _decode_energy(raw: bytes) -> Tuple[float, dict]:
+    from rclpy.serialization import deserialize_message
+    from diagnostic_msgs.msg import DiagnosticArray
+    msg = deserialize_message(raw, DiagnosticArray)
+    vals = {}
+    for kv in msg.status[0].values if msg.status else []:
+        try:
+            vals[kv.key] = float(kv.value)
+        except ValueError:
+            pass
+    return vals.get('sim_time', msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec), vals
+
+
+def read_bag(path: Path, mesh_topic: str, energy_topic: str):
+    """Raw mesh and energy messages of a rosbag2 directory, in recording order."""
+    from rosbags.highlevel import AnyReader
+    meshes, energies = [], []
+    with AnyReader([Path(path)]) as reader:
+        conns = [c for c in reader.connections if c.topic in (mesh_topic, energy_topic)]
+        if not any(c.topic == mesh_topic for c in conns):
+            raise SystemExit(f'render: {path} has no {mesh_topic} messages')
+        for conn, _, raw in reader.messages(connections=conns):
+            (meshes if conn.topic == mesh_topic else energies).append(bytes(raw))
+    return meshes, energies
+
+
+def _limits(frames):
+    pts = np.concatenate([f[1].reshape(-1, 3) for f in frames])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    c, r = 0.5 * (lo + hi), 0.5 * float((hi - lo).max()) * 1.05 + 1e-9
+    return c, r
+
+
+def render_frame(ax, t, tris, cols, centre, radius):
+    """Draw one cloth state: corner colours averaged per face, Lambert-shaded."""
+    ax.clear()
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-300)
+    light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    shade = 0.35 + 0.65 * np.abs(n @ light)
+    face = cols.mean(axis=1)
+    face[:, :3] *= shade[:, None]
+    ax.add_collection3d(Poly3DCollection(tris, facecolors=np.clip(face, 0, 1),
+                                         edgecolors='none'))
+    for set_lim, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
+        set_lim(centre[k] - radius, centre[k] + radius)
+    ax.set_box_aspect((1, 1, 1))
+    ax.view_init(elev=22, azim=-60)
+    ax.set_xlabel('x [m]')
+    ax.set_ylabel('y [m]')
+    ax.set_zlabel('z [m]')
+    ax.set_title(f't = {t:.3f} s')
+
+
+def energy_plot(energies, path: Path):
+    data = [_decode_energy(r) for r in energies]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    t = np.array([d[0] for d in data])
+    for key in ENERGY_KEYS:
+        vals = [d[1].get(key) for d in data]
+        if all(v is not None for v in vals) and vals:
+            ax.plot(t, vals, label=key)
+    ax.set_xlabel('simulation time [s]')
+    ax.set_ylabel('energy [J]')
+    ax.set_title('Cloth energies')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
+           frames: int = 60) -> List[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    if not meshes:
+        raise SystemExit('render: no mesh messages to draw')
+    pick = np.unique(np.linspace(0, len(meshes) - 1, min(frames, len(meshes))).astype(int))
+    decoded = {i: _decode_mesh(meshes[i]) for i in pick}
+    written = []
+    if times:
+        ts = np.array([decoded[i][0] for i in pick])
+        chosen = sorted({int(pick[np.argmin(np.abs(ts - t))]) for t in times})
+    else:
+        chosen = sorted({int(pick[0]), int(pick[len(pick) // 2]), int(pick[-1])})
+    for i in chosen:
+        if i not in decoded:
+            decoded[i] = _decode_mesh(meshes[i])
+    centre, radius = _limits([decoded[i] for i in decoded])
+    for i in chosen:
+        fig = plt.figure(figsize=(6, 6))
+        ax = fig.add_subplot(projection='3d')
+        render_frame(ax, *decoded[i], centre, radius)
+        p = out / f'cloth_{decoded[i][0]:.3f}s.png'
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        written.append(p)
+    from matplotlib.animation import FuncAnimation, PillowWriter
+    fig = plt.figure(figsize=(5, 5))
+    ax = fig.add_subplot(projection='3d')
+    seq = [decoded[i] for i in pick]
+    anim = FuncAnimation(fig, lambda k: render_frame(ax, *seq[k], centre, radius),
+                         frames=len(seq))
+    gif = out / 'cloth.gif'
+    anim.save(gif, writer=PillowWriter(fps=12), dpi=70)
+    written.append(gif)
+    if shutil.which('ffmpeg'):
+        mp4 = out / 'cloth.mp4'
+        anim.save(mp4, writer='ffmpeg', fps=12, dpi=90)
+        written.append(mp4)
+    plt.close(fig)
+    if energies:
+        energy_plot(energies, out / 'energy.png')
+        written.append(out / 'energy.png')
+    return written
+
+
+def live(seconds: float, node_name: str):
+    """Collect raw mesh and energy messages from the running node for ``seconds``."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from visualization_msgs.msg import MarkerArray
+    rclpy.init()
+    node = rclpy.create_node('cloth_render')
+    meshes, energies = [], []
+    node.create_subscription(MarkerArray, f'/{node_name}/mesh', meshes.append, 10, raw=True)
+    node.create_subscription(DiagnosticArray, f'/{node_name}/energy', energies.append, 10,
+                             raw=True)
+    end = time.monotonic() + seconds
+    try:
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return meshes, energies
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='render', description='Pictures of the cloth.')
+    ap.add_argument('bag', nargs='?', help='rosbag2 directory')
+    ap.add_argument('-o', '--output', required=True, help='output directory')
+    ap.add_argument('--times', type=float, nargs='*', help='simulation times to draw [s]')
+    ap.add_argument('--frames', type=int, default=60, help='frames in the animation')
+    ap.add_argument('--node', default='cloth_node', help='node whose topics to draw')
+    ap.add_argument('--live', type=float, metavar='SECONDS',
+                    help='subscribe to the running node for SECONDS instead of a bag')
+    a = ap.parse_args(argv)
+    if a.live:
+        meshes, energies = live(a.live, a.node)
+    elif a.bag:
+        if not os.path.isdir(a.bag):
+            print(f'render: error: {a.bag} is not a bag directory', file=sys.stderr)
+            return 2
+        meshes, energies = read_bag(Path(a.bag), f'/{a.node}/mesh', f'/{a.node}/energy')
+    else:
+        ap.error('give a BAG directory or --live SECONDS')
+    for p in render(meshes, energies, Path(a.output), a.times, a.frames):
+        print(f'render: wrote {p}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

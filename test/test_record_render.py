@@ -1,0 +1,126 @@
+"""record and render against a live cloth_node, read back with an independent reader."""
+import os
+import signal
+import subprocess
+import time
+
+from ament_index_python.packages import get_package_prefix
+import numpy as np
+import pytest
+from PIL import Image
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import get_typestore, Stores
+
+RATE = 20.0
+NX = 10
+
+
+def exe(name):
+    return os.path.join(get_package_prefix('cosserat_ros'), 'lib', 'cosserat_ros', name)
+
+
+@pytest.fixture(scope='module')
+def node(tmp_path_factory):
+    d = tmp_path_factory.mktemp('node')
+    params = d / 'p.yaml'
+    params.write_text(f'cloth_node:\n  ros__parameters:\n    mesh: {{nx: {NX}, ny: {NX}}}\n'
+                      f'    publish_rate: {RATE}\n    status_period: 0.0\n')
+    proc = subprocess.Popen([exe('cloth_node'), '--ros-args', '--params-file', str(params)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    yield proc
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=20)
+
+
+def record(out, *args, **kw):
+    return subprocess.run([exe('record'), '-o', str(out), *args], capture_output=True,
+                          text=True, timeout=kw.get('timeout', 120))
+
+
+@pytest.fixture(scope='module')
+def bag(node, tmp_path_factory):
+    out = tmp_path_factory.mktemp('bags') / 'cloth'
+    res = record(out, '--duration', '4')
+    assert res.returncode == 0, res.stderr
+    return out
+
+
+def test_recorded_bag_reads_back_with_an_independent_reader(bag):
+    assert (bag / 'metadata.yaml').is_file() and (bag / 'cloth.mcap').is_file()
+    store = get_typestore(Stores.ROS2_JAZZY)
+    stamps = {}
+    with AnyReader([bag], default_typestore=store) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics['/cloth_node/mesh'] == 'visualization_msgs/msg/MarkerArray'
+        assert topics['/cloth_node/energy'] == 'diagnostic_msgs/msg/DiagnosticArray'
+        assert topics['/diagnostics'] == 'diagnostic_msgs/msg/DiagnosticArray'
+        assert topics['/clock'] == 'rosgraph_msgs/msg/Clock'
+        for conn, t, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)       # every message, its own type
+            stamps.setdefault(conn.topic, []).append(t)
+            if conn.topic == '/cloth_node/mesh':
+                tri = msg.markers[0]
+                assert len(tri.points) == 3 * 2 * NX * NX     # 3 corners x faces
+                assert len(tri.colors) == len(tri.points)
+        duration = (reader.end_time - reader.start_time) * 1e-9
+    for topic, ts in stamps.items():
+        assert np.all(np.diff(ts) >= 0), topic                # monotonic receive times
+    n_mesh = len(stamps['/cloth_node/mesh'])
+    assert n_mesh == len(stamps['/cloth_node/energy'])
+    assert 0.6 * RATE * duration <= n_mesh <= 1.2 * RATE * duration + 2, (n_mesh, duration)
+    assert 1 <= len(stamps['/diagnostics']) <= duration + 2
+
+
+def test_existing_bag_is_never_overwritten(bag):
+    before = sorted(os.listdir(bag)), (bag / 'cloth.mcap').stat().st_size
+    res = record(bag, '--duration', '1')
+    assert res.returncode == 2 and 'already exists' in res.stderr
+    assert (sorted(os.listdir(bag)), (bag / 'cloth.mcap').stat().st_size) == before
+
+
+def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
+    out = tmp_path / 'interrupted'
+    p = subprocess.Popen([exe('record'), '-o', str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    time.sleep(4)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 0 and 'Traceback' not in err
+    with AnyReader([out]) as reader:
+        assert reader.message_count > 0
+    crashed = tmp_path / 'crashed'
+    p = subprocess.Popen([exe('record'), '-o', str(crashed)], stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL)
+    mcap = crashed / 'crashed.mcap'
+    end = time.monotonic() + 60
+    while time.monotonic() < end and (not mcap.exists() or mcap.stat().st_size < 3 << 20):
+        time.sleep(0.2)                                       # a few 1 MiB chunks on disk
+    p.kill()
+    p.wait()
+    assert not (crashed / 'metadata.yaml').exists()
+    res = subprocess.run([exe('record'), '--recover', str(crashed)], capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    with AnyReader([crashed]) as reader:
+        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+    assert len(msgs) >= 3
+
+
+def test_render_a_recorded_bag(bag, tmp_path):
+    out = tmp_path / 'pictures'
+    res = subprocess.run([exe('render'), str(bag), '-o', str(out), '--frames', '12'],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    pngs = sorted(out.glob('cloth_*s.png'))
+    assert len(pngs) == 3
+    imgs = [np.asarray(Image.open(p).convert('RGB'), dtype=float) for p in pngs]
+    for im in imgs:
+        assert im.shape[0] > 100 and im.std() > 10                  # not blank
+    assert np.abs(imgs[0] - imgs[-1]).mean() > 1.0                  # the cloth moved
+    gif = Image.open(out / 'cloth.gif')
+    assert gif.n_frames >= 2
+    energy = np.asarray(Image.open(out / 'energy.png').convert('RGB'), dtype=float)
+    assert energy.std() > 10
+    res = subprocess.run([exe('render'), str(out / 'nope'), '-o', str(out)],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and 'not a bag directory' in res.stderr
