@@ -632,6 +632,11 @@ def main(args=None) -> int:
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down while a tick was publishing: the publish
+        # fails with an RCLError. That is a shutdown, not a failure; anything else is.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
