@@ -28,6 +28,14 @@ and the vertex jet stresses ``J = dE_i/d(a_1, a_2, r_11, r_12, r_22)``:
 These are the Euler-Lagrange equations Eq. 24-28 in weak form; free edges carry their
 natural conditions without special code.
 
+Hourglass control of the jets: a least-squares fit cannot see some oscillating patterns
+(they leave the fitted derivatives nearly unchanged), and on irregular meshes the static
+plate exploited them (+3% that did not fall with refinement). The energy therefore adds
+``s xi A_i / h_i^4 sum_k omega_k (rho_k . n - sigma_k)^2`` per vertex, with ``rho_k`` the fit
+residual at stencil entry k and ``sigma_k`` its rest value (constants.JET_STABILIZATION).
+It is rotation invariant, zero at rest and O(h^4) for smooth fields, so it vanishes with
+refinement; its gradient joins the same adjoint gather.
+
 Seed route (``"covariant"``)
 ----------------------------
 Per vertex, from the jet geometry and vertex strains: ``N*``, ``M`` (Eq. 27 with the factor

@@ -10,24 +10,28 @@ sheet in the XY plane with counter-clockwise faces the chart is exactly ``x^1 = 
 ``x^2 = Y`` at every vertex, so components compare directly with analytic values. The
 coordinates are convected: they belong to the material point and never change.
 
-Quadratic jet (the default, convergent estimator)
--------------------------------------------------
-Over the stencil of vertex ``i`` (its 2-ring, grown to the 3- or 4-ring where the 2-ring
-cannot determine a quadratic) we fit, by least squares in chart coordinates,
+Cubic jet (the default, convergent estimator)
+---------------------------------------------
+Over the stencil of vertex ``i`` (its 2-ring; the 3-ring for boundary vertices, whose
+one-sided 2-ring is too thin; grown further where a fit is ill-conditioned) we fit, by least
+squares in chart coordinates and through ``r_i``,
 
     r(x) ~ r_i + a_1 x^1 + a_2 x^2 + 1/2 r_11 (x^1)^2 + r_12 x^1 x^2 + 1/2 r_22 (x^2)^2
+           + (cubic terms r_111 ... r_222)
 
-The fit is linear in the positions, so the five vector coefficients are fixed weighted sums
+The fit is linear in the positions, so its coefficients are fixed weighted sums
 
-    [a_1, a_2, r_11, r_12, r_22] = sum_k W[k, :] x[stencil[k]]      (stencil includes i)
+    [a_1, a_2, r_11, r_12, r_22, r_111, ...] = sum_k W[k, :] x[stencil[k]]   (i included)
 
-with the weights ``W`` precomputed once from the rest mesh. From them (Eq. 8, 10, 11, 13):
+with the weights ``W`` precomputed once from the rest mesh (9 rows; the geometry uses the
+first five). From them (Eq. 8, 10, 11, 13):
 
     a_3 = n = a_1 x a_2 / |a_1 x a_2|           a_ab = a_a . a_b
     b_ab = n . r_ab                               Gamma^g_ab = a^gd a_d . r_ab   (Sec. 2.6)
 
-The fit is exact for quadratic surfaces and its errors fall with refinement (see
-``docs/geometry.md`` and ``test/test_geometry.py``).
+Exact for quadratic surfaces (the seed's saddle); with the cubic terms the second
+derivatives are O(h^2) on any stencil, boundary included (a quadratic jet is only O(h) on
+one-sided or irregular stencils). See ``docs/validation.md`` section 1.
 
 Seed estimator (``curvature="seed"``, for comparison only)
 -----------------------------------------------------------

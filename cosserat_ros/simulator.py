@@ -504,7 +504,9 @@ class ClothSimulator:
         differences of the internal force), and the damped symplectic Euler limit
         ``dt < (sqrt(gamma^2 + 4 omega^2) - gamma) / omega^2`` (gamma = rho/mu) is applied.
         For membranes omega_max ~ 2 c / h (c = sqrt(6 zeta/mu)), giving the rule of thumb
-        dt <~ 0.8 h / c of model.md; bending adds ~ sqrt(D/mu) (k/h)^2 on fine meshes.
+        dt <~ 0.8 h / c of model.md; bending adds ~ sqrt(D/mu) (k/h)^2 on fine meshes. The
+        result is CRITICAL_DT_SAFETY (0.8) times that linear limit, because strained states
+        pump energy into the highest modes near it (constants.py has the measurement).
         """
         if self._critical_dt is None:
             om = math.sqrt(self.max_eigenvalue())

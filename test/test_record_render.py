@@ -66,7 +66,8 @@ def test_recorded_bag_reads_back_with_an_independent_reader(bag):
     for topic, ts in stamps.items():
         assert np.all(np.diff(ts) >= 0), topic                # monotonic receive times
     n_mesh = len(stamps['/cloth_node/mesh'])
-    assert n_mesh == len(stamps['/cloth_node/energy'])
+    # the node publishes mesh then energy each tick; the recording may start or stop between
+    assert abs(n_mesh - len(stamps['/cloth_node/energy'])) <= 1
     assert 0.6 * RATE * duration <= n_mesh <= 1.2 * RATE * duration + 2, (n_mesh, duration)
     assert 1 <= len(stamps['/diagnostics']) <= duration + 2
 
