@@ -33,8 +33,9 @@ def node(tmp_path_factory):
 
 
 def record(out, *args, **kw):
-    return subprocess.run([exe('record'), '-o', str(out), *args], capture_output=True,
-                          text=True, timeout=kw.get('timeout', 120))
+    # --wait: a node started with a cold numba cache compiles its kernels first
+    return subprocess.run([exe('record'), '-o', str(out), '--wait', '150', *args],
+                          capture_output=True, text=True, timeout=kw.get('timeout', 240))
 
 
 @pytest.fixture(scope='module')
@@ -81,8 +82,8 @@ def test_existing_bag_is_never_overwritten(bag):
 
 def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     out = tmp_path / 'interrupted'
-    p = subprocess.Popen([exe('record'), '-o', str(out)], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '150'],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=30)
@@ -90,8 +91,8 @@ def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     with AnyReader([out]) as reader:
         assert reader.message_count > 0
     crashed = tmp_path / 'crashed'
-    p = subprocess.Popen([exe('record'), '-o', str(crashed)], stdout=subprocess.DEVNULL,
-                         stderr=subprocess.DEVNULL)
+    p = subprocess.Popen([exe('record'), '-o', str(crashed), '--wait', '150'],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     mcap = crashed / 'crashed.mcap'
     end = time.monotonic() + 60
     while time.monotonic() < end and (not mcap.exists() or mcap.stat().st_size < 3 << 20):
