@@ -251,22 +251,30 @@ def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, 
     normal's dependence on a_1, a_2 included)."""
     p0 = st_ptr[i]
     nc = jt.shape[0]
+    # rho_k . n = d_k . n - sum_c phi_kc (coef_c . n): scalar products per entry; the
+    # adjoint needs only G = sum_k g_k d_k and P_c = sum_k g_k phi_kc
+    cn_ = np.zeros(9)
+    for c in range(nc):
+        cn_[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
+    pc = np.zeros(9)
     e = 0.0
     gs = 0.0
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
+    G0 = 0.0
+    G1 = 0.0
+    G2 = 0.0
+    xi0 = x[i, 0]
+    xi1 = x[i, 1]
+    xi2 = x[i, 2]
     for k in range(p0 + 1, st_ptr[i + 1]):
         j = st_idx[k]
         ph = st_ph[k]
-        r0 = x[j, 0] - x[i, 0]
-        r1 = x[j, 1] - x[i, 1]
-        r2 = x[j, 2] - x[i, 2]
+        d0 = x[j, 0] - xi0
+        d1 = x[j, 1] - xi1
+        d2 = x[j, 2] - xi2
+        s = 0.0
         for c in range(nc):
-            r0 -= ph[c] * jt[c, 0]
-            r1 -= ph[c] * jt[c, 1]
-            r2 -= ph[c] * jt[c, 2]
-        d = r0 * n0 + r1 * n1 + r2 * n2 - st_sigma[k]
+            s += ph[c] * cn_[c]
+        d = d0 * n0 + d1 * n1 + d2 * n2 - s - st_sigma[k]
         om = cst * st_omega[k]
         e += om * d * d
         g = 2.0 * om * d
@@ -274,13 +282,21 @@ def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, 
         sgrad[k, 1] = g * n1
         sgrad[k, 2] = g * n2
         gs += g
+        G0 += g * d0
+        G1 += g * d1
+        G2 += g * d2
         for c in range(nc):
-            jx[c, 0] -= ph[c] * g * n0
-            jx[c, 1] -= ph[c] * g * n1
-            jx[c, 2] -= ph[c] * g * n2
-        v0 += g * r0
-        v1 += g * r1
-        v2 += g * r2
+            pc[c] += g * ph[c]
+    v0 = G0
+    v1 = G1
+    v2 = G2
+    for c in range(nc):
+        jx[c, 0] -= pc[c] * n0
+        jx[c, 1] -= pc[c] * n1
+        jx[c, 2] -= pc[c] * n2
+        v0 -= pc[c] * jt[c, 0]
+        v1 -= pc[c] * jt[c, 1]
+        v2 -= pc[c] * jt[c, 2]
     sgrad[p0, 0] = -gs * n0
     sgrad[p0, 1] = -gs * n1
     sgrad[p0, 2] = -gs * n2
