@@ -549,8 +549,7 @@ class ClothNode(Node):
 
     def publish_state(self):
         """Publish ~/mesh, ~/energy and /clock for the current state."""
-        self._energy = self.sim.energy()
-        self._densities = self.sim.energy_densities()
+        self._energy, self._densities = self.sim.energy_and_densities()
         x = self.sim.positions
         if not np.all(np.isfinite(x)):       # never publish a NaN (step() restores state)
             return

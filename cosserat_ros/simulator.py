@@ -412,23 +412,41 @@ class ClothSimulator:
                          self._cwork, out)
 
     # ------------------------------------------------------------------ energy
-    def _energy_fields(self):
-        """Fill the work arrays with face strains, kap, epsbar at the current state."""
-        tmp = np.empty_like(self._force)
-        _forces.variational_forces(self._x, self._ops, self._mat, self._work, tmp)
-        return tmp
-
-    def energy_densities(self) -> Dict[str, np.ndarray]:
-        """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
-        ``coupling`` and ``total``, each (n,)."""
-        self._energy_fields()
+    def energy_and_densities(self):
+        """:meth:`energy` and :meth:`energy_densities` from one force evaluation."""
+        f = np.empty_like(self._force)
+        # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
+        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
         _, eps, _, _, kap, epsbar, _, _, estab, _ = self._work
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
                                  self._ainv, *self._mat, out)
-        return {'stretching': out[:, 0], 'bending': out[:, 1], 'coupling': out[:, 2],
+        dens = {'stretching': out[:, 0], 'bending': out[:, 1], 'coupling': out[:, 2],
                 'total': out.sum(axis=1)}
+        A = self.mesh.dual_areas
+        stretching = float(np.dot(A, dens['stretching']))
+        bending = float(np.dot(A, dens['bending']))
+        coupling = float(np.dot(A, dens['coupling']))
+        if self._method != METHOD_VARIATIONAL:
+            f = self.internal_forces()
+        m = self._mass[:, None]
+        acc = (f + self._f_applied + m * self._gravity[None, :] - self._damp[:, None] * self._v)
+        vs = self._v + 0.5 * self._dt * acc / m
+        vs[self._pinned] = 0.0
+        kinetic = 0.5 * float(np.sum(self._mass[:, None] * vs * vs))
+        gravity = -float(np.sum(self._mass * (self._x @ self._gravity)))
+        elastic = stretching + bending + coupling
+        energy = {'kinetic': kinetic, 'stretching': stretching, 'bending': bending,
+                  'coupling': coupling, 'elastic': elastic, 'gravity': gravity,
+                  'external_work': float(self._acc[0]), 'dissipated': float(self._acc[1]),
+                  'total': kinetic + elastic + gravity}
+        return energy, dens
+
+    def energy_densities(self) -> Dict[str, np.ndarray]:
+        """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
+        ``coupling`` and ``total``, each (n,)."""
+        return self.energy_and_densities()[1]
 
     def energy(self) -> Dict[str, float]:
         """Energies [J] of the current state and the running balance terms.
@@ -440,27 +458,7 @@ class ClothSimulator:
         forces and force field) and ``dissipated`` (damping) accumulate since the last
         reset, so ``total - total(0) ~ external_work - dissipated``.
         """
-        dens = self.energy_densities()
-        A = self.mesh.dual_areas
-        stretching = float(np.dot(A, dens['stretching']))
-        bending = float(np.dot(A, dens['bending']))
-        coupling = float(np.dot(A, dens['coupling']))
-        if self._method == METHOD_VARIATIONAL:
-            f = np.empty_like(self._force)
-            _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
-        else:
-            f = self.internal_forces()
-        m = self._mass[:, None]
-        acc = (f + self._f_applied + m * self._gravity[None, :] - self._damp[:, None] * self._v)
-        vs = self._v + 0.5 * self._dt * acc / m
-        vs[self._pinned] = 0.0
-        kinetic = 0.5 * float(np.sum(self._mass[:, None] * vs * vs))
-        gravity = -float(np.sum(self._mass * (self._x @ self._gravity)))
-        elastic = stretching + bending + coupling
-        return {'kinetic': kinetic, 'stretching': stretching, 'bending': bending,
-                'coupling': coupling, 'elastic': elastic, 'gravity': gravity,
-                'external_work': float(self._acc[0]), 'dissipated': float(self._acc[1]),
-                'total': kinetic + elastic + gravity}
+        return self.energy_and_densities()[0]
 
     # ------------------------------------------------------------------ inspection
     def geometry(self, curvature: str = 'jet') -> Geometry:

@@ -42,6 +42,16 @@ def wave(X, Y, k=2.0, a=0.2):
     return h, dh, H
 
 
+def _save_plot(fig, ax, xlabel, ylabel, title, path, legend_size=8):
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=legend_size)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def geometry_study():
     rows = []
     for pattern in ('regular', 'alternating', 'irregular'):
@@ -162,13 +172,9 @@ def main(argv=None):
                   f'{order(NS, [x[3] for x in r]):.2f} | {order(NS, [x[4] for x in r]):.2f} |')
         ax.loglog([1 / n for n in NS], [x[3] for x in r], 'o-', label=f'jet, {pattern}')
         ax.loglog([1 / n for n in NS], [x[5] for x in r], 's--', label=f'seed, {pattern}')
-    ax.set_xlabel('h [m]')
-    ax.set_ylabel('max curvature error [1/m]')
-    ax.legend(fontsize=7)
-    ax.set_title('Curvature: cubic jet vs the seed estimator')
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, 'validation_geometry.png'), dpi=110)
-    plt.close(fig)
+    _save_plot(fig, ax, 'h [m]', 'max curvature error [1/m]',
+               'Curvature: cubic jet vs the seed estimator',
+               os.path.join(out, 'validation_geometry.png'), legend_size=7)
     md += ['', '![geometry convergence](validation_geometry.png)', '']
 
     print('plates ...', flush=True)
@@ -195,13 +201,8 @@ def main(argv=None):
                        ('clamped, regular', cl), ('frequency, regular', fr['regular']),
                        ('frequency, irregular', fr['irregular'])):
         ax.loglog([1 / n for n in NS], [abs(r['error']) for r in res], 'o-', label=label)
-    ax.set_xlabel('h [m]')
-    ax.set_ylabel('|relative error|')
-    ax.set_title('Plates against Kirchhoff theory')
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out, 'validation_plates.png'), dpi=110)
-    plt.close(fig)
+    _save_plot(fig, ax, 'h [m]', '|relative error|', 'Plates against Kirchhoff theory',
+               os.path.join(out, 'validation_plates.png'))
     md += ['', '![plate convergence](validation_plates.png)', '']
 
     print('cantilevers ...', flush=True)
