@@ -126,3 +126,14 @@ def test_render_a_recorded_bag(bag, tmp_path):
     res = subprocess.run([exe('render'), str(out / 'nope'), '-o', str(out)],
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and 'not a bag directory' in res.stderr
+
+
+def test_render_live_topics(node, bag, tmp_path):
+    # `bag` first: it guarantees the node is up and publishing
+    out = tmp_path / 'live'
+    res = subprocess.run([exe('render'), '--live', '3', '-o', str(out), '--frames', '6'],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    pngs = sorted(out.glob('cloth_*s.png'))
+    assert pngs and (out / 'cloth.gif').exists() and (out / 'energy.png').exists()
+    assert np.asarray(Image.open(pngs[-1]).convert('RGB'), dtype=float).std() > 10
