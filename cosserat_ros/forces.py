@@ -228,16 +228,23 @@ def vertex_bending(x, st_ptr, st_idx, st_w, st_ph, st_omega, st_sigma, stab, vf_
 
 
 @nb.njit(cache=True, inline='always')
-def _design_row(u, v, ph):
-    ph[0] = u
-    ph[1] = v
-    ph[2] = 0.5 * u * u
-    ph[3] = u * v
-    ph[4] = 0.5 * v * v
-    ph[5] = u * u * u / 6.0
-    ph[6] = 0.5 * u * u * v
-    ph[7] = 0.5 * u * v * v
-    ph[8] = v * v * v / 6.0
+def _coef_dot_n(jt, n0, n1, n2, out):
+    """out[c] = coef_c . n for every jet coefficient."""
+    for c in range(jt.shape[0]):
+        out[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
+
+
+@nb.njit(cache=True, inline='always')
+def _residual_n(x, i, j, ph, cn_, n0, n1, n2):
+    """Offset d = x_j - x_i and the fit residual along the normal,
+    rho . n = d . n - sum_c phi_c (coef_c . n): returns (d0, d1, d2, rho . n)."""
+    d0 = x[j, 0] - x[i, 0]
+    d1 = x[j, 1] - x[i, 1]
+    d2 = x[j, 2] - x[i, 2]
+    s = 0.0
+    for c in range(ph.shape[0]):
+        s += ph[c] * cn_[c]
+    return d0, d1, d2, d0 * n0 + d1 * n1 + d2 * n2 - s
 
 
 @nb.njit(cache=True, inline='always')
@@ -254,27 +261,17 @@ def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, 
     # rho_k . n = d_k . n - sum_c phi_kc (coef_c . n): scalar products per entry; the
     # adjoint needs only G = sum_k g_k d_k and P_c = sum_k g_k phi_kc
     cn_ = np.zeros(9)
-    for c in range(nc):
-        cn_[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
+    _coef_dot_n(jt, n0, n1, n2, cn_)
     pc = np.zeros(9)
     e = 0.0
     gs = 0.0
     G0 = 0.0
     G1 = 0.0
     G2 = 0.0
-    xi0 = x[i, 0]
-    xi1 = x[i, 1]
-    xi2 = x[i, 2]
     for k in range(p0 + 1, st_ptr[i + 1]):
-        j = st_idx[k]
         ph = st_ph[k]
-        d0 = x[j, 0] - xi0
-        d1 = x[j, 1] - xi1
-        d2 = x[j, 2] - xi2
-        s = 0.0
-        for c in range(nc):
-            s += ph[c] * cn_[c]
-        d = d0 * n0 + d1 * n1 + d2 * n2 - s - st_sigma[k]
+        d0, d1, d2, rn = _residual_n(x, i, st_idx[k], ph, cn_, n0, n1, n2)
+        d = rn - st_sigma[k]
         om = cst * st_omega[k]
         e += om * d * d
         g = 2.0 * om * d
@@ -316,16 +313,8 @@ def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, 
     jx[1, 2] += w2
 
 
-def design_rows(st_x: np.ndarray) -> np.ndarray:
-    """phi_c(u, v) of every stencil entry, (K, 9): u, v, u^2/2, uv, v^2/2, u^3/6,
-    u^2 v/2, u v^2/2, v^3/6 (the columns of the jet fit)."""
-    u, v = st_x[:, 0], st_x[:, 1]
-    return np.ascontiguousarray(np.stack([u, v, 0.5 * u * u, u * v, 0.5 * v * v, u ** 3 / 6,
-                                          0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6], 1))
-
-
 @nb.njit(cache=True, parallel=True)
-def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_x, out):
+def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
     """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state)."""
     n = x.shape[0]
     nc = st_w.shape[1]
@@ -334,19 +323,12 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_x, out):
         _jet(x, st_ptr, st_idx, st_w, i, jt)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        ph = np.zeros(9)
+        cn_ = np.zeros(nc)
+        _coef_dot_n(jt, c0 / cn, c1 / cn, c2 / cn, cn_)
         out[st_ptr[i]] = 0.0
         for k in range(st_ptr[i] + 1, st_ptr[i + 1]):
-            j = st_idx[k]
-            _design_row(st_x[k, 0], st_x[k, 1], ph)
-            d = 0.0
-            cc = (c0 / cn, c1 / cn, c2 / cn)
-            for q in range(3):
-                r = x[j, q] - x[i, q]
-                for c in range(nc):
-                    r -= ph[c] * jt[c, q]
-                d += r * cc[q]
-            out[k] = d
+            out[k] = _residual_n(x, i, st_idx[k], st_ph[k], cn_, c0 / cn, c1 / cn,
+                                 c2 / cn)[3]
 
 
 @nb.njit(cache=True, parallel=True)

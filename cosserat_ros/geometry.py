@@ -104,7 +104,9 @@ def rest_frames(mesh: ClothMesh) -> np.ndarray:
     return np.stack([e1, e2, nrm], axis=1)
 
 
-def _design(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def design_matrix(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Columns of the jet fit at chart coordinates (u, v), shape (..., NJET): u, v, u^2/2,
+    uv, v^2/2 and, for the cubic jet, u^3/6, u^2 v/2, u v^2/2, v^3/6."""
     cols = [u, v, 0.5 * u * u, u * v, 0.5 * v * v]
     if JET_DEGREE == 3:
         cols += [u ** 3 / 6, 0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6]
@@ -124,7 +126,7 @@ def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
     s = np.sqrt(((u * u + v * v) * w).sum(axis=1) / cnt)
     s = np.where(s > 0, s, 1.0)
     sw = np.sqrt(w)
-    phi = _design(u / s[:, None], v / s[:, None]) * sw[..., None]
+    phi = design_matrix(u / s[:, None], v / s[:, None]) * sw[..., None]
     m = np.einsum('bsa,bsc->bac', phi, phi)
     ev = np.linalg.eigvalsh(m)
     rcond = ev[:, 0] / np.maximum(ev[:, -1], 1e-300)

@@ -53,7 +53,7 @@ class _Bag:
         self.counts: Dict[str, int] = {}
         self._chunks = 0
 
-    def add(self, topic: str, type_name: str, qos_profiles=()):
+    def add(self, topic: str, type_name: str):
         self.connections[topic] = self.writer.add_connection(topic, type_name,
                                                              typestore=self.typestore)
         self.counts[topic] = 0

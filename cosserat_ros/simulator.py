@@ -29,7 +29,7 @@ from . import forces as _forces
 from .constants import CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILIZATION
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
-                       Geometry)
+                       design_matrix, Geometry)
 from .integrator import (internal_forces as _internal_forces, METHOD_COVARIANT,
                          METHOD_VARIATIONAL, run_steps, stability_limit)
 from .material import Material
@@ -108,9 +108,9 @@ class ClothSimulator:
         self._dinv, self._K = self._face_charts()
         self._stab = np.zeros(n)
         self._st_sigma = np.zeros(len(self._jet.st_idx))
-        self._st_ph = _forces.design_rows(self._jet.st_x)
+        self._st_ph = design_matrix(self._jet.st_x[:, 0], self._jet.st_x[:, 1])
         _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
-                                     self._jet.st_w, self._jet.st_x, self._st_sigma)
+                                     self._jet.st_w, self._st_ph, self._st_sigma)
         frames = self._jet.frames
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
@@ -122,10 +122,11 @@ class ClothSimulator:
                      self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
         self._cov = (self._rest_a, self._st_T)
-        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, self._jet.st_w.shape[1], 3)),
+        nc = self._jet.st_w.shape[1]
+        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, nc, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
                       np.zeros((m, 3, 3)), np.zeros((len(self._jet.st_idx), 3)), np.zeros(n),
-                      np.zeros((n, self._jet.st_w.shape[1], 3)))
+                      np.zeros((n, nc, 3)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
