@@ -7,9 +7,9 @@ DEGENERATE_AREA_RTOL = 1e-12
 #: this is grown by one more ring (up to JET_MAX_RINGS).
 JET_RCOND_MIN = 1e-6
 JET_MAX_RINGS = 4
-#: Degree of the least-squares jet. Cubic: second derivatives are O(h^2) on any stencil,
-#: boundary included (a quadratic jet is only O(h) on one-sided or irregular stencils).
-JET_DEGREE = 3
+#: The least-squares jet is cubic (geometry.NJET = 9 coefficients): second derivatives are
+#: O(h^2) on any stencil, boundary included (a quadratic jet is only O(h) on one-sided or
+#: irregular stencils). The vertex kernel of forces.py is written for exactly nine.
 
 #: Safety factor applied to the linear stability limit 2/omega_max in `critical_dt`. Near
 #: omega dt = 2 the explicit update lets strained states pump energy into the highest modes:
@@ -29,3 +29,8 @@ DIVERGENCE_SPEED_FACTOR = 50.0
 #: simply supported plate on irregular meshes stalls near +3% (20/40/80: 4.1, 2.9, ...);
 #: with s = 1000 it converges (2.3, 0.8, 0.3%) at an ~8% smaller stable step.
 JET_STABILIZATION = 1000.0
+
+#: Vertices per work item of the parallel vertex pass: each chunk owns one scratch row, so
+#: the pass allocates nothing and shares no writes; small enough to balance two threads on
+#: a 20x20 sheet.
+VERTEX_CHUNK = 16

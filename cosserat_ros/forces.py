@@ -7,7 +7,7 @@ Discrete energy (``"variational"``)
 * membrane, per triangle (constant-strain triangle, so no hourglass mode): the deformation
   gradient ``F_t = [x1 - x0, x2 - x0] Dinv_t`` in the triangle's orthonormal rest chart,
   ``eps_t = (F_t^T F_t - I) / 2`` (Eq. 17), ``W_m = zeta B(eps_t, eps_t)`` with A = I;
-* bending, per vertex from the quadratic jet of :mod:`.geometry`: ``kap_i = -(b_i - B_i)``;
+* bending, per vertex from the cubic jet of :mod:`.geometry`: ``kap_i = -(b_i - B_i)``;
 * coupling, per vertex: ``epsbar_i`` is the dual-area average of the incident triangles'
   strain carried to the vertex chart, ``epsbar_i = sum_t (area_t / 3 A_i) K_it^T eps_t K_it``
   where ``K_it = D_t U_it^-1`` maps the vertex chart onto the triangle chart (``U_it`` are
@@ -18,13 +18,19 @@ rule through them is the adjoint (transpose) of the discrete derivative operator
 discrete divergence, gathered per vertex through the transposed stencils. With
 ``N*_t = 2 Phi eps_t`` (Eq. 22) and ``M_i = 2 Psi kap_i + Theta epsbar_i``:
 
-    dE/dx_j = sum_{t ni j} [F_t S_t Dinv_t^T]_corner
-            + sum_{i: j in stencil(i)} sum_c W_i[j, c] J_i[c]
+    dE/dx_j = sum_{t ni j} [F_t S_t Dinv_t^T]_corner + sum_{i: j in stencil(i)} dE_i/dx_j
 
-with the triangle "stress times area" ``S_t = area_t N*_t + sum_{i in t} area_t/3 K Theta kap_i K^T``
-and the vertex jet stresses ``J = dE_i/d(a_1, a_2, r_11, r_12, r_22)``:
-``dE_i/dr_ab = g_ab n``, ``dE_i/da_1 = sum g_ab a_2 x t_ab``, ``dE_i/da_2 = sum g_ab t_ab x a_1``,
-``g_ab = -A_i (M^ab + M^ba)/(1 + [a == b])``, ``t_ab = (I - n n^T) r_ab / |a_1 x a_2|``.
+with the triangle "stress times area" ``S_t = area_t N*_t + sum_{i in t} area_t/3 K Theta kap_i K^T``.
+The vertex term depends on the stencil offsets ``d_k = x_j - x_i`` only through the normal
+components ``dn_k = d_k . n`` (``b_ab = sum_k W_k,ab dn_k``) and the normal
+``n = a_1 x a_2 / |a_1 x a_2|`` (``a_a = sum_k W_k,a d_k``), so with
+``h_k = dE_i/d(dn_k)`` and ``g_ab = dE_i/db_ab = -A_i (M^ab + M^ba)/(1 + [a == b])``:
+
+    dE_i/dd_k = h_k n + W_k,1 (a_2 x t) + W_k,2 (t x a_1),
+    t = (I - n n^T) sum_k h_k d_k / |a_1 x a_2|
+
+(see :func:`_vertex`). Four passes over the stencil per vertex and one gather per vertex;
+no scatter, no per-coefficient jet stress.
 These are the Euler-Lagrange equations Eq. 24-28 in weak form; free edges carry their
 natural conditions without special code.
 
@@ -49,7 +55,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .geometry import _cross
+from .compiled import kernel
+from .constants import VERTEX_CHUNK
+from .geometry import _cross, NJET
 from .material import bilinear, contract
 
 __all__ = ['DIVERGENCE_METHODS']
@@ -57,7 +65,7 @@ __all__ = ['DIVERGENCE_METHODS']
 DIVERGENCE_METHODS = ('variational', 'covariant')
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def face_strain(x, faces, dinv, F, eps):
     """Deformation gradient F (m,3,2) and Green strain eps (m,3) = (11, 12, 22) per face."""
     m = faces.shape[0]
@@ -82,7 +90,7 @@ def face_strain(x, faces, dinv, F, eps):
         eps[t, 2] = 0.5 * (f22 - 1.0)
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def _to_vertex_chart(K, t, c, e11, e12, e22):
     """K^T e K for the corner (t, c): a face-chart tensor in the vertex chart."""
     k00 = K[t, c, 0, 0]
@@ -97,7 +105,7 @@ def _to_vertex_chart(K, t, c, e11, e12, e22):
     return (k00 * p00 + k10 * p10, k00 * p01 + k10 * p11, k01 * p01 + k11 * p11)
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def _to_face_chart(K, t, c, s11, s12, s22):
     """K s K^T for the corner (t, c): a vertex-chart stress in the face chart."""
     k00 = K[t, c, 0, 0]
@@ -111,7 +119,7 @@ def _to_face_chart(K, t, c, s11, s12, s22):
     return (p00 * k00 + p01 * k01, p00 * k10 + p01 * k11, p10 * k10 + p11 * k11)
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def _jet(x, st_ptr, st_idx, st_w, i, out):
     """out (nc, 3): a_1, a_2, r_11, r_12, r_22 (and the cubic terms) of vertex i."""
     nc = st_w.shape[1]
@@ -131,110 +139,197 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
             out[c, 2] += w * x2
 
 
-@nb.njit(cache=True, parallel=True)
-def vertex_bending(x, st_ptr, st_idx, st_w, st_ph, st_omega, st_sigma, stab, vf_ptr, vf_face,
-                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress,
-                   cstress, kap, epsbar, sgrad, estab, jets):
-    """Per-vertex bending and coupling: kap, epsbar (n,3), jet stresses J (n,5,3), the
-    coupling stress Theta kap (n,3) that the faces take up, and the jet-residual
-    stabilisation: its energy estab (n,) and direct gradient per stencil entry sgrad (K,3).
-    See the module docstring."""
+@kernel(inline='always')
+def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner, eps,
+            face_area, K, dual_area, ainv, rest_b, xi, phi, sc, cv, contrib, cstress, kap,
+            epsbar, estab):
+    """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
+
+    Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
+    ``b_ab = sum_k W_k,ab dn_k``, ``cn_c = coef_c . n = sum_k W_kc dn_k``, residual along
+    the normal ``rho_k . n = dn_k - phi_k . cn``. Then
+
+        h_k = dE_i/d(dn_k) = 2 c_i omega (rho_k . n - sigma_k) + sum_ab W_k,ab g_ab
+        dE_i/dd_k = h_k n + W_k1 J_1 + W_k2 J_2,   J_1 = a_2 x t, J_2 = t x a_1,
+        t = (I - n n^T) V / |a_1 x a_2|,            V = sum_k h_k d_k
+
+    (the normal depends on the positions through a_1, a_2 only). The least-squares fit
+    residual is orthogonal to the design columns (sum_k phi_k (rho_k . n - sigma_k) = 0
+    for the uniform fit weights), so the residual term needs no jet adjoint of its own.
+    Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, the centre included
+    (``-sum`` of the others). ``sc`` (S,5) and ``cv`` (NJET,) are per-thread scratch."""
+    p0 = st_ptr[i]
+    p1 = st_ptr[i + 1]
+    ns = p1 - p0 - 1
+    xi0 = x[i, 0]
+    xi1 = x[i, 1]
+    xi2 = x[i, 2]
+    # pass 1: offsets and the tangent vectors a_1, a_2 (Eq. 8)
+    a10 = 0.0
+    a11 = 0.0
+    a12 = 0.0
+    a20 = 0.0
+    a21 = 0.0
+    a22 = 0.0
+    for s in range(ns):
+        k = p0 + 1 + s
+        j = st_idx[k]
+        d0 = x[j, 0] - xi0
+        d1 = x[j, 1] - xi1
+        d2 = x[j, 2] - xi2
+        sc[s, 0] = d0
+        sc[s, 1] = d1
+        sc[s, 2] = d2
+        w0 = st_w[k, 0]
+        w1 = st_w[k, 1]
+        a10 += w0 * d0
+        a11 += w0 * d1
+        a12 += w0 * d2
+        a20 += w1 * d0
+        a21 += w1 * d1
+        a22 += w1 * d2
+    c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
+    cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    n0 = c0 / cn
+    n1 = c1 / cn
+    n2 = c2 / cn
+    # pass 2: the jet along the normal, cn_c = coef_c . n; b_ab = cn for r_ab (Eq. 11).
+    # Nine scalar accumulators (the cubic jet), kept in registers.
+    q0 = 0.0
+    q1 = 0.0
+    q2 = 0.0
+    q3 = 0.0
+    q4 = 0.0
+    q5 = 0.0
+    q6 = 0.0
+    q7 = 0.0
+    q8 = 0.0
+    for s in range(ns):
+        k = p0 + 1 + s
+        dn = sc[s, 0] * n0 + sc[s, 1] * n1 + sc[s, 2] * n2
+        sc[s, 3] = dn
+        q0 += st_w[k, 0] * dn
+        q1 += st_w[k, 1] * dn
+        q2 += st_w[k, 2] * dn
+        q3 += st_w[k, 3] * dn
+        q4 += st_w[k, 4] * dn
+        q5 += st_w[k, 5] * dn
+        q6 += st_w[k, 6] * dn
+        q7 += st_w[k, 7] * dn
+        q8 += st_w[k, 8] * dn
+    k11 = -(q2 - rest_b[i, 0])
+    k12 = -(q3 - rest_b[i, 1])
+    k22 = -(q4 - rest_b[i, 2])
+    e11 = 0.0
+    e12 = 0.0
+    e22 = 0.0
+    for q in range(vf_ptr[i], vf_ptr[i + 1]):
+        t = vf_face[q]
+        c = vf_corner[q]
+        w = face_area[t] / (3.0 * dual_area[i])
+        v11, v12, v22 = _to_vertex_chart(K, t, c, eps[t, 0], eps[t, 1], eps[t, 2])
+        e11 += w * v11
+        e12 += w * v12
+        e22 += w * v22
+    i11 = ainv[i, 0]
+    i12 = ainv[i, 1]
+    i22 = ainv[i, 2]
+    m11, m12, m22 = contract(2.0 * xi, i11, i12, i22, k11, k12, k22)
+    s11, s12, s22 = contract(phi, i11, i12, i22, e11, e12, e22)
+    m11 += s11
+    m12 += s12
+    m22 += s22
+    cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
+    cstress[i, 0] = cs11
+    cstress[i, 1] = cs12
+    cstress[i, 2] = cs22
+    kap[i, 0] = k11
+    kap[i, 1] = k12
+    kap[i, 2] = k22
+    epsbar[i, 0] = e11
+    epsbar[i, 1] = e12
+    epsbar[i, 2] = e22
+    A = dual_area[i]
+    # g_ab = dE_i/db_ab (r_12 enters twice)
+    g11 = -A * m11
+    g12 = -2.0 * A * m12
+    g22 = -A * m22
+    # pass 3: residuals along the normal, h_k = dE_i/d(dn_k) and V = sum_k h_k d_k
+    om = stab[i] / ns
+    e = 0.0
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for s in range(ns):
+        k = p0 + 1 + s
+        r = sc[s, 3] - (st_ph[k, 0] * q0 + st_ph[k, 1] * q1 + st_ph[k, 2] * q2
+                        + st_ph[k, 3] * q3 + st_ph[k, 4] * q4 + st_ph[k, 5] * q5
+                        + st_ph[k, 6] * q6 + st_ph[k, 7] * q7 + st_ph[k, 8] * q8)
+        dd = r - st_sigma[k]
+        e += dd * dd
+        h = 2.0 * om * dd + st_w[k, 2] * g11 + st_w[k, 3] * g12 + st_w[k, 4] * g22
+        sc[s, 4] = h
+        v0 += h * sc[s, 0]
+        v1 += h * sc[s, 1]
+        v2 += h * sc[s, 2]
+    estab[i] = om * e
+    # V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |a_1 x a_2|
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    t0 = (v0 - vn * n0) / cn
+    t1 = (v1 - vn * n1) / cn
+    t2 = (v2 - vn * n2) / cn
+    j10, j11, j12 = _cross(a20, a21, a22, t0, t1, t2)
+    j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
+    # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum
+    f0 = 0.0
+    f1 = 0.0
+    f2 = 0.0
+    for s in range(ns):
+        k = p0 + 1 + s
+        w0 = st_w[k, 0]
+        w1 = st_w[k, 1]
+        h = sc[s, 4]
+        g0 = w0 * j10 + w1 * j20 + h * n0
+        g1 = w0 * j11 + w1 * j21 + h * n1
+        g2 = w0 * j12 + w1 * j22 + h * n2
+        contrib[k, 0] = g0
+        contrib[k, 1] = g1
+        contrib[k, 2] = g2
+        f0 += g0
+        f1 += g1
+        f2 += g2
+    contrib[p0, 0] = -f0
+    contrib[p0, 1] = -f1
+    contrib[p0, 2] = -f2
+
+
+@kernel(parallel=True)
+def vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+                eps, face_area, K, dual_area, ainv, rest_b, xi, phi, scratch, cvs, contrib,
+                cstress, kap, epsbar, estab):
+    """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
+    that the faces take up, the residual energy estab (n,) and the stencil gradients
+    contrib (K,3). Parallel over chunks of VERTEX_CHUNK vertices, each with its own
+    scratch row (no allocation, no shared writes)."""
     n = x.shape[0]
-    nc = st_w.shape[1]
-    for i in nb.prange(n):
-        jt = jets[i]                 # per-vertex scratch: no allocation in the parallel loop
-        jx = jstress[i]
-        _jet(x, st_ptr, st_idx, st_w, i, jt)
-        for c in range(nc):
-            jx[c, 0] = 0.0
-            jx[c, 1] = 0.0
-            jx[c, 2] = 0.0
-        c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        n0 = c0 / cn
-        n1 = c1 / cn
-        n2 = c2 / cn
-        _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, stab[i], i, jt, n0, n1, n2,
-                      cn, jx, sgrad, estab)
-        b11 = n0 * jt[2, 0] + n1 * jt[2, 1] + n2 * jt[2, 2]
-        b12 = n0 * jt[3, 0] + n1 * jt[3, 1] + n2 * jt[3, 2]
-        b22 = n0 * jt[4, 0] + n1 * jt[4, 1] + n2 * jt[4, 2]
-        k11 = -(b11 - rest_b[i, 0])
-        k12 = -(b12 - rest_b[i, 1])
-        k22 = -(b22 - rest_b[i, 2])
-        e11 = 0.0
-        e12 = 0.0
-        e22 = 0.0
-        for q in range(vf_ptr[i], vf_ptr[i + 1]):
-            t = vf_face[q]
-            c = vf_corner[q]
-            w = face_area[t] / (3.0 * dual_area[i])
-            v11, v12, v22 = _to_vertex_chart(K, t, c, eps[t, 0], eps[t, 1], eps[t, 2])
-            e11 += w * v11
-            e12 += w * v12
-            e22 += w * v22
-        i11 = ainv[i, 0]
-        i12 = ainv[i, 1]
-        i22 = ainv[i, 2]
-        m11, m12, m22 = contract(2.0 * xi, i11, i12, i22, k11, k12, k22)
-        s11, s12, s22 = contract(phi, i11, i12, i22, e11, e12, e22)
-        m11 += s11
-        m12 += s12
-        m22 += s22
-        cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
-        cstress[i, 0] = cs11
-        cstress[i, 1] = cs12
-        cstress[i, 2] = cs22
-        kap[i, 0] = k11
-        kap[i, 1] = k12
-        kap[i, 2] = k22
-        epsbar[i, 0] = e11
-        epsbar[i, 1] = e12
-        epsbar[i, 2] = e22
-        A = dual_area[i]
-        g = (-A * m11, -2.0 * A * m12, -A * m22)
-        for c in range(3):
-            jx[2 + c, 0] += g[c] * n0
-            jx[2 + c, 1] += g[c] * n1
-            jx[2 + c, 2] += g[c] * n2
-        da10 = 0.0
-        da11 = 0.0
-        da12 = 0.0
-        da20 = 0.0
-        da21 = 0.0
-        da22 = 0.0
-        for c in range(3):
-            r0 = jt[2 + c, 0]
-            r1 = jt[2 + c, 1]
-            r2 = jt[2 + c, 2]
-            rn = r0 * n0 + r1 * n1 + r2 * n2
-            t0 = g[c] * (r0 - rn * n0) / cn
-            t1 = g[c] * (r1 - rn * n1) / cn
-            t2 = g[c] * (r2 - rn * n2) / cn
-            u0, u1, u2 = _cross(jt[1, 0], jt[1, 1], jt[1, 2], t0, t1, t2)
-            da10 += u0
-            da11 += u1
-            da12 += u2
-            w0, w1, w2 = _cross(t0, t1, t2, jt[0, 0], jt[0, 1], jt[0, 2])
-            da20 += w0
-            da21 += w1
-            da22 += w2
-        jx[0, 0] += da10
-        jx[0, 1] += da11
-        jx[0, 2] += da12
-        jx[1, 0] += da20
-        jx[1, 1] += da21
-        jx[1, 2] += da22
+    nch = scratch.shape[0]
+    for ch in nb.prange(nch):
+        sc = scratch[ch]
+        cv = cvs[ch]
+        for i in range(ch * VERTEX_CHUNK, min(n, (ch + 1) * VERTEX_CHUNK)):
+            _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
+                    vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, sc, cv,
+                    contrib, cstress, kap, epsbar, estab)
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def _coef_dot_n(jt, n0, n1, n2, out):
     """out[c] = coef_c . n for every jet coefficient."""
     for c in range(jt.shape[0]):
         out[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def _residual_n(x, i, j, ph, cn_, n0, n1, n2):
     """Offset d = x_j - x_i and the fit residual along the normal,
     rho . n = d . n - sum_c phi_c (coef_c . n): returns (d0, d1, d2, rho . n)."""
@@ -247,73 +342,7 @@ def _residual_n(x, i, j, ph, cn_, n0, n1, n2):
     return d0, d1, d2, d0 * n0 + d1 * n1 + d2 * n2 - s
 
 
-@nb.njit(cache=True, inline='always')
-def _jet_residual(x, st_ptr, st_idx, st_ph, st_omega, st_sigma, cst, i, jt, n0, n1, n2, cn,
-                  jx, sgrad, estab):
-    """Hourglass control of the jet: E_s,i = c_i sum_k omega_k (rho_k . n - sigma_k)^2,
-    rho_k = x_j - x_i - sum_c phi_c(u_k, v_k) coef_c the least-squares residual, sigma_k its
-    rest value along the rest normal (zero on a flat sheet). Rotation invariant, zero at
-    rest, O(h^4) for smooth fields. Writes estab[i] and the direct gradient g_k n at each
-    stencil entry (the centre takes minus their sum) and adds dE_s/dcoef_c to jx (the
-    normal's dependence on a_1, a_2 included)."""
-    p0 = st_ptr[i]
-    nc = jt.shape[0]
-    # rho_k . n = d_k . n - sum_c phi_kc (coef_c . n): scalar products per entry; the
-    # adjoint needs only G = sum_k g_k d_k and P_c = sum_k g_k phi_kc
-    cn_ = np.zeros(9)
-    _coef_dot_n(jt, n0, n1, n2, cn_)
-    pc = np.zeros(9)
-    e = 0.0
-    gs = 0.0
-    G0 = 0.0
-    G1 = 0.0
-    G2 = 0.0
-    for k in range(p0 + 1, st_ptr[i + 1]):
-        ph = st_ph[k]
-        d0, d1, d2, rn = _residual_n(x, i, st_idx[k], ph, cn_, n0, n1, n2)
-        d = rn - st_sigma[k]
-        om = cst * st_omega[k]
-        e += om * d * d
-        g = 2.0 * om * d
-        sgrad[k, 0] = g * n0
-        sgrad[k, 1] = g * n1
-        sgrad[k, 2] = g * n2
-        gs += g
-        G0 += g * d0
-        G1 += g * d1
-        G2 += g * d2
-        for c in range(nc):
-            pc[c] += g * ph[c]
-    v0 = G0
-    v1 = G1
-    v2 = G2
-    for c in range(nc):
-        jx[c, 0] -= pc[c] * n0
-        jx[c, 1] -= pc[c] * n1
-        jx[c, 2] -= pc[c] * n2
-        v0 -= pc[c] * jt[c, 0]
-        v1 -= pc[c] * jt[c, 1]
-        v2 -= pc[c] * jt[c, 2]
-    sgrad[p0, 0] = -gs * n0
-    sgrad[p0, 1] = -gs * n1
-    sgrad[p0, 2] = -gs * n2
-    estab[i] = e
-    # v . dn with dn = (I - n n^T) dc / |c|, dc = da_1 x a_2 + a_1 x da_2
-    vn = v0 * n0 + v1 * n1 + v2 * n2
-    t0 = (v0 - vn * n0) / cn
-    t1 = (v1 - vn * n1) / cn
-    t2 = (v2 - vn * n2) / cn
-    u0, u1, u2 = _cross(jt[1, 0], jt[1, 1], jt[1, 2], t0, t1, t2)
-    jx[0, 0] += u0
-    jx[0, 1] += u1
-    jx[0, 2] += u2
-    w0, w1, w2 = _cross(t0, t1, t2, jt[0, 0], jt[0, 1], jt[0, 2])
-    jx[1, 0] += w0
-    jx[1, 1] += w1
-    jx[1, 2] += w2
-
-
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
     """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state)."""
     n = x.shape[0]
@@ -331,7 +360,7 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
                                  c2 / cn)[3]
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad):
     """Energy gradient at the three corners of each face, fgrad (m,3,3) = dE_t/dx_corner."""
     m = faces.shape[0]
@@ -365,54 +394,60 @@ def face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad):
             fgrad[t, 0, k] = -g1 - g2
 
 
-@nb.njit(cache=True, parallel=True)
-def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w,
-                  jstress, sgrad, force):
-    """force[j] = -dE/dx_j: corner gradients of incident faces plus the jet adjoint."""
+@kernel(inline='always')
+def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
+    """-dE/dx_j: corner gradients of the incident faces plus the stencil gradients of every
+    vertex whose jet uses x_j (the transposed stencil)."""
+    g0 = 0.0
+    g1 = 0.0
+    g2 = 0.0
+    for q in range(vf_ptr[j], vf_ptr[j + 1]):
+        t = vf_face[q]
+        c = vf_corner[q]
+        g0 += fgrad[t, c, 0]
+        g1 += fgrad[t, c, 1]
+        g2 += fgrad[t, c, 2]
+    for q in range(tr_ptr[j], tr_ptr[j + 1]):
+        k = tr_slot[q]
+        g0 += contrib[k, 0]
+        g1 += contrib[k, 1]
+        g2 += contrib[k, 2]
+    return -g0, -g1, -g2
+
+
+@kernel(parallel=True)
+def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, force):
+    """force[j] = -dE/dx_j (n,3) [N]."""
     n = force.shape[0]
     for j in nb.prange(n):
-        g0 = 0.0
-        g1 = 0.0
-        g2 = 0.0
-        for q in range(vf_ptr[j], vf_ptr[j + 1]):
-            t = vf_face[q]
-            c = vf_corner[q]
-            g0 += fgrad[t, c, 0]
-            g1 += fgrad[t, c, 1]
-            g2 += fgrad[t, c, 2]
-        for q in range(tr_ptr[j], tr_ptr[j + 1]):
-            i = tr_src[q]
-            k = tr_slot[q]
-            g0 += sgrad[k, 0]
-            g1 += sgrad[k, 1]
-            g2 += sgrad[k, 2]
-            for c in range(st_w.shape[1]):
-                w = st_w[k, c]
-                g0 += w * jstress[i, c, 0]
-                g1 += w * jstress[i, c, 1]
-                g2 += w * jstress[i, c, 2]
-        force[j, 0] = -g0
-        force[j, 1] = -g1
-        force[j, 2] = -g2
+        force[j, 0], force[j, 1], force[j, 2] = _gather(j, vf_ptr, vf_face, vf_corner, fgrad,
+                                                        tr_ptr, tr_slot, contrib)
 
 
-@nb.njit(cache=True)
+@kernel()
+def variational_stages(x, ops, mat, work):
+    """Everything of the variational force but the final gather: face strains, the vertex
+    pass and the face gradients (work arrays)."""
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
+     st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+    zeta, xi, phi = mat[0], mat[1], mat[2]
+    F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch, cvs = work
+    face_strain(x, faces, dinv, F, eps)
+    vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+                eps, face_area, K, dual_area, ainv, rest_b, xi, phi, scratch, cvs, contrib,
+                cstress, kap, epsbar, estab)
+    face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
+
+
+@kernel()
 def variational_forces(x, ops, mat, work, force):
     """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
-     st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
-    zeta, xi, phi = mat[0], mat[1], mat[2]
-    F, eps, jstress, cstress, kap, epsbar, fgrad, sgrad, estab, jets = work
-    face_strain(x, faces, dinv, F, eps)
-    vertex_bending(x, st_ptr, st_idx, st_w, st_ph, st_omega, st_sigma, stab, vf_ptr, vf_face,
-                   vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, jstress,
-                   cstress, kap, epsbar, sgrad, estab, jets)
-    face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
-    gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_src, tr_slot, st_w, jstress,
-                  sgrad, force)
+    variational_stages(x, ops, mat, work)
+    vf_ptr, vf_face, vf_corner = ops[15], ops[16], ops[17]
+    gather_forces(vf_ptr, vf_face, vf_corner, work[6], ops[13], ops[14], work[7], force)
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def energy_densities(eps, kap, epsbar, estab, faces, face_area, vf_ptr, vf_face, dual_area,
                      ainv, zeta, xi, phi, out):
     """Per-vertex energy densities [J/m^2] out (n,3): stretching (dual-area average of the
@@ -440,7 +475,7 @@ def energy_densities(eps, kap, epsbar, estab, faces, face_area, vf_ptr, vf_face,
 
 # --------------------------------------------------------------------------- seed route
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, zeta, xi, phi,
                          basis, chris, mres, nres):
     """Vertex resultants for the seed route: basis (n,3,3), Christoffel (n,2,2,2),
@@ -501,7 +536,7 @@ def covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, zeta, xi
                 nres[i, al, be] = Ns[al][be] - s
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def covariant_force_vectors(st_ptr, st_idx, st_w, st_T, basis, chris, mres, nres, nvec):
     """N^3b = M^ba|_a (Eq. 15, 28) and the force vectors N^b = N^ab a_a + N^3b a_3
     (Eq. 26), nvec (n,2,3). Neighbour components are carried into the vertex chart by
@@ -532,7 +567,7 @@ def covariant_force_vectors(st_ptr, st_idx, st_w, st_T, basis, chris, mres, nres
                                  + s * basis[i, 2, k])
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, force):
     """Nodal force A_i N^a|_a = A_i (d_a N^a + Gamma^a_al N^l) (Eq. 14, 24)."""
     n = nvec.shape[0]
@@ -561,14 +596,13 @@ def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, for
         force[i, 2] = A * f2
 
 
-@nb.njit(cache=True)
+@kernel()
 def covariant_forces(x, ops, cov, mat, cwork, force):
     """Seed-route internal force (n,3) [N] at positions x."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
-     st_omega, st_sigma, stab, tr_ptr, tr_src, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+    dual_area, st_ptr, st_idx, st_w = ops[4], ops[7], ops[8], ops[9]
     rest_a, st_T = cov
     basis, chris, mres, nres, nvec = cwork
-    covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, mat[0], mat[1],
+    covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ops[5], ops[6], mat[0], mat[1],
                          mat[2], basis, chris, mres, nres)
     covariant_force_vectors(st_ptr, st_idx, st_w, st_T, basis, chris, mres, nres, nvec)
     covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, force)

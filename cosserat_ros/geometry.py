@@ -54,7 +54,7 @@ import warnings
 import numba as nb
 import numpy as np
 
-from .constants import JET_DEGREE, JET_MAX_RINGS, JET_RCOND_MIN
+from .constants import JET_MAX_RINGS, JET_RCOND_MIN
 from .mesh import ClothMesh, csr_from_pairs, k_ring
 
 __all__ = ['JetOperator', 'Geometry', 'build_jet_operator', 'compute_geometry',
@@ -64,8 +64,8 @@ CURVATURE_ESTIMATORS = ('jet', 'seed')
 
 #: Index order of the five jet coefficients.
 JET_A1, JET_A2, JET_R11, JET_R12, JET_R22 = range(5)
-#: rows of the jet operator: 5 (quadratic) or 9 (cubic: + r_111, r_112, r_122, r_222)
-NJET = 9 if JET_DEGREE == 3 else 5
+#: rows of the (cubic) jet operator: a_1, a_2, r_11, r_12, r_22, r_111, r_112, r_122, r_222
+NJET = 9
 
 
 @dataclass(frozen=True)
@@ -105,11 +105,10 @@ def rest_frames(mesh: ClothMesh) -> np.ndarray:
 
 
 def design_matrix(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Columns of the jet fit at chart coordinates (u, v), shape (..., NJET): u, v, u^2/2,
-    uv, v^2/2 and, for the cubic jet, u^3/6, u^2 v/2, u v^2/2, v^3/6."""
-    cols = [u, v, 0.5 * u * u, u * v, 0.5 * v * v]
-    if JET_DEGREE == 3:
-        cols += [u ** 3 / 6, 0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6]
+    """Columns of the cubic jet fit at chart coordinates (u, v), shape (..., NJET): u, v,
+    u^2/2, uv, v^2/2, u^3/6, u^2 v/2, u v^2/2, v^3/6."""
+    cols = [u, v, 0.5 * u * u, u * v, 0.5 * v * v,
+            u ** 3 / 6, 0.5 * u * u * v, 0.5 * u * v * v, v ** 3 / 6]
     return np.stack(cols, axis=-1)
 
 
@@ -144,7 +143,7 @@ def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
 
 
 def build_jet_operator(mesh: ClothMesh) -> JetOperator:
-    """Quadratic-jet weights over the 2-ring of every vertex (grown where needed)."""
+    """Cubic-jet weights over the 2-ring of every vertex (grown where needed)."""
     n = mesh.n_vertices
     X = mesh.vertices
     frames = rest_frames(mesh)
@@ -161,7 +160,7 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     rings = np.full(n, 2, dtype=np.int64)
     # one-sided stencils: boundary vertices fit over their 3-ring (a cubic jet needs the
     # points spread over more than the thin one-sided 2-ring); ill-conditioned fits grow
-    bad = np.flatnonzero((rcond <= JET_RCOND_MIN) | (mesh.boundary_vertices & (JET_DEGREE == 3)))
+    bad = np.flatnonzero((rcond <= JET_RCOND_MIN) | mesh.boundary_vertices)
     for i in range(n):
         sel = mask[i]
         stencils[i] = (pad[i, sel], wts[i, sel], chart[i, sel], omega[i, sel])

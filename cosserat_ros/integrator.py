@@ -19,51 +19,84 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .forces import covariant_forces, variational_forces
+from .compiled import kernel
+from .forces import _gather, covariant_forces, variational_forces, variational_stages
 
 METHOD_VARIATIONAL = 0
 METHOD_COVARIANT = 1
 
 
-@nb.njit(cache=True, parallel=True)
+@kernel(inline='always')
+def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, g0, g1, g2, vmax2):
+    """Eq. 29 for vertex i with internal force f: returns (external work, dissipation,
+    1 if the vertex went bad (non-finite or faster than sqrt(vmax2)) else 0)."""
+    m = mass[i]
+    c = damp[i]
+    vo0 = v[i, 0]
+    vo1 = v[i, 1]
+    vo2 = v[i, 2]
+    vn0 = vo0 + dt / m * (f0 + f_applied[i, 0] + m * g0 - c * vo0)
+    vn1 = vo1 + dt / m * (f1 + f_applied[i, 1] + m * g1 - c * vo1)
+    vn2 = vo2 + dt / m * (f2 + f_applied[i, 2] + m * g2 - c * vo2)
+    s2 = vn0 * vn0 + vn1 * vn1 + vn2 * vn2
+    bad = 0 if s2 <= vmax2 else 1  # also catches NaN
+    v[i, 0] = vn0
+    v[i, 1] = vn1
+    v[i, 2] = vn2
+    x[i, 0] += dt * vn0
+    x[i, 1] += dt * vn1
+    x[i, 2] += dt * vn2
+    work = dt * (f_applied[i, 0] * vn0 + f_applied[i, 1] * vn1 + f_applied[i, 2] * vn2)
+    diss = dt * c * (vo0 * vn0 + vo1 * vn1 + vo2 * vn2)
+    return work, diss, bad
+
+
+@kernel(parallel=True)
 def integrate(x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc):
     """One symplectic Euler update in place; returns the number of vertices that went bad
     (non-finite or faster than sqrt(vmax2))."""
-    n = x.shape[0]
     work = 0.0
     diss = 0.0
     bad = 0
-    g0 = gravity[0]
-    g1 = gravity[1]
-    g2 = gravity[2]
-    for i in nb.prange(n):
-        if pinned[i]:
-            continue
-        m = mass[i]
-        c = damp[i]
-        vo0 = v[i, 0]
-        vo1 = v[i, 1]
-        vo2 = v[i, 2]
-        vn0 = vo0 + dt / m * (force[i, 0] + f_applied[i, 0] + m * g0 - c * vo0)
-        vn1 = vo1 + dt / m * (force[i, 1] + f_applied[i, 1] + m * g1 - c * vo1)
-        vn2 = vo2 + dt / m * (force[i, 2] + f_applied[i, 2] + m * g2 - c * vo2)
-        s2 = vn0 * vn0 + vn1 * vn1 + vn2 * vn2
-        if not (s2 <= vmax2):  # also catches NaN
-            bad += 1
-        v[i, 0] = vn0
-        v[i, 1] = vn1
-        v[i, 2] = vn2
-        x[i, 0] += dt * vn0
-        x[i, 1] += dt * vn1
-        x[i, 2] += dt * vn2
-        work += dt * (f_applied[i, 0] * vn0 + f_applied[i, 1] * vn1 + f_applied[i, 2] * vn2)
-        diss += dt * c * (vo0 * vn0 + vo1 * vn1 + vo2 * vn2)
+    for i in nb.prange(x.shape[0]):
+        if not pinned[i]:
+            w, d, b = _update(i, x, v, force[i, 0], force[i, 1], force[i, 2], f_applied, mass,
+                              damp, dt, gravity[0], gravity[1], gravity[2], vmax2)
+            work += w
+            diss += d
+            bad += b
     acc[0] += work
     acc[1] += diss
     return bad
 
 
-@nb.njit(cache=True)
+@kernel(parallel=True)
+def gather_integrate(ops, work_arrays, x, v, force, f_applied, mass, damp, pinned, gravity, dt,
+                     vmax2, acc):
+    """The last stage of the variational force (the gather) fused with the update: one pass
+    over the vertices. Returns the number of vertices that went bad."""
+    tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
+    fgrad, contrib = work_arrays[6], work_arrays[7]
+    work = 0.0
+    diss = 0.0
+    bad = 0
+    for i in nb.prange(x.shape[0]):
+        f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib)
+        force[i, 0] = f0
+        force[i, 1] = f1
+        force[i, 2] = f2
+        if not pinned[i]:
+            w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, gravity[0],
+                              gravity[1], gravity[2], vmax2)
+            work += w
+            diss += d
+            bad += b
+    acc[0] += work
+    acc[1] += diss
+    return bad
+
+
+@kernel()
 def internal_forces(x, method, ops, cov, mat, work, cwork, force):
     """Dispatch to the selected discretisation of N^a|_a."""
     if method == METHOD_VARIATIONAL:
@@ -72,14 +105,23 @@ def internal_forces(x, method, ops, cov, mat, work, cwork, force):
         covariant_forces(x, ops, cov, mat, cwork, force)
 
 
-@nb.njit(cache=True)
+@kernel()
 def run_steps(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc, method,
               ops, cov, mat, work, cwork, force):
     """Advance ``nsteps`` steps in compiled code. Returns the number of completed steps;
-    fewer than ``nsteps`` means step ``returned value`` diverged (state then invalid)."""
+    fewer than ``nsteps`` means step ``returned value`` diverged (state then invalid).
+    A variational step is four parallel passes: face strains, vertices (jets, bending,
+    coupling, stencil gradients), face gradients, and gather + update."""
     for s in range(nsteps):
-        internal_forces(x, method, ops, cov, mat, work, cwork, force)
-        if integrate(x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc) > 0:
+        if method == METHOD_VARIATIONAL:
+            variational_stages(x, ops, mat, work)
+            bad = gather_integrate(ops, work, x, v, force, f_applied, mass, damp, pinned,
+                                   gravity, dt, vmax2, acc)
+        else:
+            covariant_forces(x, ops, cov, mat, cwork, force)
+            bad = integrate(x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2,
+                            acc)
+        if bad > 0:
             return s
     return nsteps
 

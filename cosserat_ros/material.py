@@ -36,8 +36,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-import numba as nb
 import numpy as np
+
+from .compiled import kernel
 
 __all__ = ['Material', 'material_tensor', 'bilinear', 'contract']
 
@@ -118,7 +119,7 @@ def material_tensor(c: float, rest_metric: np.ndarray) -> np.ndarray:
                 + np.einsum('nad,nbg->nabgd', ai, ai))
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def bilinear(i11, i12, i22, e11, e12, e22, k11, k12, k22):
     """B(e, k) = tr(Ai e) tr(Ai k) + 2 tr(Ai e Ai k) for symmetric 2x2 tensors."""
     # Ai e (rows): [[i11 e11 + i12 e12, i11 e12 + i12 e22], [i12 e11 + i22 e12, ...]]
@@ -133,7 +134,7 @@ def bilinear(i11, i12, i22, e11, e12, e22, k11, k12, k22):
     return (p11 + p22) * (q11 + q22) + 2.0 * (p11 * q11 + p12 * q21 + p21 * q12 + p22 * q22)
 
 
-@nb.njit(cache=True, inline='always')
+@kernel(inline='always')
 def contract(c, i11, i12, i22, t11, t12, t22):
     """C(c)^abgd T_gd = c [Ai tr(Ai T) + 2 Ai T Ai] for symmetric T: returns (11, 12, 22)."""
     tr = i11 * t11 + 2.0 * i12 * t12 + i22 * t22

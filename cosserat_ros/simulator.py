@@ -26,7 +26,8 @@ import warnings
 import numpy as np
 
 from . import forces as _forces
-from .constants import CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILIZATION
+from .constants import (CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILIZATION,
+                        VERTEX_CHUNK)
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
                        design_matrix, Geometry)
@@ -117,16 +118,17 @@ class ClothSimulator:
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._st_ph, self._jet.st_omega, self._st_sigma,
-                     self._stab,
-                     self._jet.tr_ptr, self._jet.tr_src, self._jet.tr_slot,
+                     self._jet.st_w, self._st_ph, self._st_sigma, self._stab,
+                     self._jet.tr_ptr, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
         self._cov = (self._rest_a, self._st_T)
-        nc = self._jet.st_w.shape[1]
-        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, nc, 3)),
-                      np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
-                      np.zeros((m, 3, 3)), np.zeros((len(self._jet.st_idx), 3)), np.zeros(n),
-                      np.zeros((n, nc, 3)))
+        nch = -(-n // VERTEX_CHUNK)
+        smax = int(np.diff(self._jet.st_ptr).max())
+        # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
+        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
+                      np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
+                      np.zeros((len(self._jet.st_idx), 3)), np.zeros((nch, smax, 5)),
+                      np.zeros((nch, self._jet.st_w.shape[1])))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -418,7 +420,7 @@ class ClothSimulator:
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
         _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
-        _, eps, _, _, kap, epsbar, _, _, estab, _ = self._work
+        _, eps, _, kap, epsbar, estab = self._work[:6]
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
@@ -465,7 +467,7 @@ class ClothSimulator:
     def geometry(self, curvature: str = 'jet') -> Geometry:
         """Per-vertex geometry of the current state (see :class:`Geometry`).
 
-        ``curvature`` selects the curvature estimator: ``"jet"`` (quadratic least-squares
+        ``curvature`` selects the curvature estimator: ``"jet"`` (cubic least-squares
         jet, convergent, default) or ``"seed"`` (normal differences along the 1-ring, the
         seed's Sec. 5.2; does not converge, kept for comparison).
         """
