@@ -91,12 +91,12 @@ def face_strain(x, faces, dinv, F, eps):
 
 
 @kernel(inline='always')
-def _to_vertex_chart(K, t, c, e11, e12, e22):
-    """K^T e K for the corner (t, c): a face-chart tensor in the vertex chart."""
-    k00 = K[t, c, 0, 0]
-    k01 = K[t, c, 0, 1]
-    k10 = K[t, c, 1, 0]
-    k11 = K[t, c, 1, 1]
+def _to_vertex_chart(vf_K, q, e11, e12, e22):
+    """K^T e K for the vertex-face entry q (vf_K (nvf,4) holds the 2x2 K row by row)."""
+    k00 = vf_K[q, 0]
+    k01 = vf_K[q, 1]
+    k10 = vf_K[q, 2]
+    k11 = vf_K[q, 3]
     # e K
     p00 = e11 * k00 + e12 * k10
     p01 = e11 * k01 + e12 * k11
@@ -122,7 +122,7 @@ def _to_face_chart(K, t, c, s11, s12, s22):
 @kernel(inline='always')
 def _jet(x, st_ptr, st_idx, st_w, i, out):
     """out (nc, 3): a_1, a_2, r_11, r_12, r_22 (and the cubic terms) of vertex i."""
-    nc = st_w.shape[1]
+    nc = st_w.shape[0]
     for c in range(nc):
         out[c, 0] = 0.0
         out[c, 1] = 0.0
@@ -133,16 +133,16 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
         x1 = x[j, 1]
         x2 = x[j, 2]
         for c in range(nc):
-            w = st_w[k, c]
+            w = st_w[c, k]
             out[c, 0] += w * x0
             out[c, 1] += w * x1
             out[c, 2] += w * x2
 
 
 @kernel(inline='always')
-def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner, eps,
-            face_area, K, dual_area, ainv, rest_b, xi, phi, sc, cv, contrib, cstress, kap,
-            epsbar, estab):
+def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+            eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar,
+            estab):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
 
     Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
@@ -157,14 +157,37 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     residual is orthogonal to the design columns (sum_k phi_k (rho_k . n - sigma_k) = 0
     for the uniform fit weights), so the residual term needs no jet adjoint of its own.
     Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, the centre included
-    (``-sum`` of the others). ``sc`` (S,5) and ``cv`` (NJET,) are per-thread scratch."""
-    p0 = st_ptr[i]
+    (``-sum`` of the others), coordinate-major (3, K). ``sc`` (5, S) is the chunk's
+    scratch."""
+    p0 = st_ptr[i] + 1
     p1 = st_ptr[i + 1]
-    ns = p1 - p0 - 1
+    ns = p1 - p0
+    # one coefficient's weights over the stencil are contiguous: the loops below run over
+    # the stencil entries as vectors
+    idx = st_idx[p0:p1]
+    w0 = st_w[0, p0:p1]
+    w1 = st_w[1, p0:p1]
+    w2 = st_w[2, p0:p1]
+    w3 = st_w[3, p0:p1]
+    w4 = st_w[4, p0:p1]
+    w5 = st_w[5, p0:p1]
+    w6 = st_w[6, p0:p1]
+    w7 = st_w[7, p0:p1]
+    w8 = st_w[8, p0:p1]
+    D0 = sc[0, :ns]
+    D1 = sc[1, :ns]
+    D2 = sc[2, :ns]
+    DN = sc[3, :ns]
+    H = sc[4, :ns]
     xi0 = x[i, 0]
     xi1 = x[i, 1]
     xi2 = x[i, 2]
-    # pass 1: offsets and the tangent vectors a_1, a_2 (Eq. 8)
+    # pass 1: offsets d_k and the tangent vectors a_1, a_2 (Eq. 8)
+    for s in range(ns):
+        j = idx[s]
+        D0[s] = x[j, 0] - xi0
+        D1[s] = x[j, 1] - xi1
+        D2[s] = x[j, 2] - xi2
     a10 = 0.0
     a11 = 0.0
     a12 = 0.0
@@ -172,29 +195,20 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     a21 = 0.0
     a22 = 0.0
     for s in range(ns):
-        k = p0 + 1 + s
-        j = st_idx[k]
-        d0 = x[j, 0] - xi0
-        d1 = x[j, 1] - xi1
-        d2 = x[j, 2] - xi2
-        sc[s, 0] = d0
-        sc[s, 1] = d1
-        sc[s, 2] = d2
-        w0 = st_w[k, 0]
-        w1 = st_w[k, 1]
-        a10 += w0 * d0
-        a11 += w0 * d1
-        a12 += w0 * d2
-        a20 += w1 * d0
-        a21 += w1 * d1
-        a22 += w1 * d2
+        a10 += w0[s] * D0[s]
+        a11 += w0[s] * D1[s]
+        a12 += w0[s] * D2[s]
+        a20 += w1[s] * D0[s]
+        a21 += w1[s] * D1[s]
+        a22 += w1[s] * D2[s]
     c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
     cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     n0 = c0 / cn
     n1 = c1 / cn
     n2 = c2 / cn
-    # pass 2: the jet along the normal, cn_c = coef_c . n; b_ab = cn for r_ab (Eq. 11).
-    # Nine scalar accumulators (the cubic jet), kept in registers.
+    # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab (Eq. 11)
+    for s in range(ns):
+        DN[s] = D0[s] * n0 + D1[s] * n1 + D2[s] * n2
     q0 = 0.0
     q1 = 0.0
     q2 = 0.0
@@ -205,32 +219,30 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     q7 = 0.0
     q8 = 0.0
     for s in range(ns):
-        k = p0 + 1 + s
-        dn = sc[s, 0] * n0 + sc[s, 1] * n1 + sc[s, 2] * n2
-        sc[s, 3] = dn
-        q0 += st_w[k, 0] * dn
-        q1 += st_w[k, 1] * dn
-        q2 += st_w[k, 2] * dn
-        q3 += st_w[k, 3] * dn
-        q4 += st_w[k, 4] * dn
-        q5 += st_w[k, 5] * dn
-        q6 += st_w[k, 6] * dn
-        q7 += st_w[k, 7] * dn
-        q8 += st_w[k, 8] * dn
+        dn = DN[s]
+        q0 += w0[s] * dn
+        q1 += w1[s] * dn
+        q2 += w2[s] * dn
+        q3 += w3[s] * dn
+        q4 += w4[s] * dn
+        q5 += w5[s] * dn
+        q6 += w6[s] * dn
+        q7 += w7[s] * dn
+        q8 += w8[s] * dn
     k11 = -(q2 - rest_b[i, 0])
     k12 = -(q3 - rest_b[i, 1])
     k22 = -(q4 - rest_b[i, 2])
     e11 = 0.0
     e12 = 0.0
     e22 = 0.0
+    # epsbar_i = sum_t area_t / (3 A_i) K_it^T eps_t K_it, with the weight folded into
+    # vf_K (the corner matrices stored in vertex-face order)
     for q in range(vf_ptr[i], vf_ptr[i + 1]):
         t = vf_face[q]
-        c = vf_corner[q]
-        w = face_area[t] / (3.0 * dual_area[i])
-        v11, v12, v22 = _to_vertex_chart(K, t, c, eps[t, 0], eps[t, 1], eps[t, 2])
-        e11 += w * v11
-        e12 += w * v12
-        e22 += w * v22
+        v11, v12, v22 = _to_vertex_chart(vf_K, q, eps[t, 0], eps[t, 1], eps[t, 2])
+        e11 += v11
+        e12 += v12
+        e22 += v22
     i11 = ainv[i, 0]
     i12 = ainv[i, 1]
     i22 = ainv[i, 2]
@@ -254,26 +266,35 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     g11 = -A * m11
     g12 = -2.0 * A * m12
     g22 = -A * m22
-    # pass 3: residuals along the normal, h_k = dE_i/d(dn_k) and V = sum_k h_k d_k
+    # pass 3: residuals along the normal rho_k . n = dn_k - phi_k . q and
+    # h_k = dE_i/d(dn_k)
+    f0_ = st_ph[0, p0:p1]
+    f1_ = st_ph[1, p0:p1]
+    f2_ = st_ph[2, p0:p1]
+    f3_ = st_ph[3, p0:p1]
+    f4_ = st_ph[4, p0:p1]
+    f5_ = st_ph[5, p0:p1]
+    f6_ = st_ph[6, p0:p1]
+    f7_ = st_ph[7, p0:p1]
+    f8_ = st_ph[8, p0:p1]
+    sig = st_sigma[p0:p1]
     om = stab[i] / ns
     e = 0.0
+    for s in range(ns):
+        r = DN[s] - (f0_[s] * q0 + f1_[s] * q1 + f2_[s] * q2 + f3_[s] * q3 + f4_[s] * q4
+                     + f5_[s] * q5 + f6_[s] * q6 + f7_[s] * q7 + f8_[s] * q8)
+        dd = r - sig[s]
+        e += dd * dd
+        H[s] = 2.0 * om * dd + w2[s] * g11 + w3[s] * g12 + w4[s] * g22
+    estab[i] = om * e
+    # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
     v0 = 0.0
     v1 = 0.0
     v2 = 0.0
     for s in range(ns):
-        k = p0 + 1 + s
-        r = sc[s, 3] - (st_ph[k, 0] * q0 + st_ph[k, 1] * q1 + st_ph[k, 2] * q2
-                        + st_ph[k, 3] * q3 + st_ph[k, 4] * q4 + st_ph[k, 5] * q5
-                        + st_ph[k, 6] * q6 + st_ph[k, 7] * q7 + st_ph[k, 8] * q8)
-        dd = r - st_sigma[k]
-        e += dd * dd
-        h = 2.0 * om * dd + st_w[k, 2] * g11 + st_w[k, 3] * g12 + st_w[k, 4] * g22
-        sc[s, 4] = h
-        v0 += h * sc[s, 0]
-        v1 += h * sc[s, 1]
-        v2 += h * sc[s, 2]
-    estab[i] = om * e
-    # V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |a_1 x a_2|
+        v0 += H[s] * D0[s]
+        v1 += H[s] * D1[s]
+        v2 += H[s] * D2[s]
     vn = v0 * n0 + v1 * n1 + v2 * n2
     t0 = (v0 - vn * n0) / cn
     t1 = (v1 - vn * n1) / cn
@@ -281,45 +302,43 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     j10, j11, j12 = _cross(a20, a21, a22, t0, t1, t2)
     j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
     # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum
+    C0 = contrib[0, p0:p1]
+    C1 = contrib[1, p0:p1]
+    C2 = contrib[2, p0:p1]
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
     for s in range(ns):
-        k = p0 + 1 + s
-        w0 = st_w[k, 0]
-        w1 = st_w[k, 1]
-        h = sc[s, 4]
-        g0 = w0 * j10 + w1 * j20 + h * n0
-        g1 = w0 * j11 + w1 * j21 + h * n1
-        g2 = w0 * j12 + w1 * j22 + h * n2
-        contrib[k, 0] = g0
-        contrib[k, 1] = g1
-        contrib[k, 2] = g2
+        g0 = w0[s] * j10 + w1[s] * j20 + H[s] * n0
+        g1 = w0[s] * j11 + w1[s] * j21 + H[s] * n1
+        g2 = w0[s] * j12 + w1[s] * j22 + H[s] * n2
+        C0[s] = g0
+        C1[s] = g1
+        C2[s] = g2
         f0 += g0
         f1 += g1
         f2 += g2
-    contrib[p0, 0] = -f0
-    contrib[p0, 1] = -f1
-    contrib[p0, 2] = -f2
+    contrib[0, p0 - 1] = -f0
+    contrib[1, p0 - 1] = -f1
+    contrib[2, p0 - 1] = -f2
 
 
 @kernel(parallel=True)
 def vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
-                eps, face_area, K, dual_area, ainv, rest_b, xi, phi, scratch, cvs, contrib,
-                cstress, kap, epsbar, estab):
+                eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
+                epsbar, estab):
     """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
-    contrib (K,3). Parallel over chunks of VERTEX_CHUNK vertices, each with its own
+    contrib (3,K). Parallel over chunks of VERTEX_CHUNK vertices, each with its own
     scratch row (no allocation, no shared writes)."""
     n = x.shape[0]
     nch = scratch.shape[0]
     for ch in nb.prange(nch):
         sc = scratch[ch]
-        cv = cvs[ch]
         for i in range(ch * VERTEX_CHUNK, min(n, (ch + 1) * VERTEX_CHUNK)):
             _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
-                    vf_corner, eps, face_area, K, dual_area, ainv, rest_b, xi, phi, sc, cv,
-                    contrib, cstress, kap, epsbar, estab)
+                    vf_corner, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib,
+                    cstress, kap, epsbar, estab)
 
 
 @kernel(inline='always')
@@ -346,7 +365,7 @@ def _residual_n(x, i, j, ph, cn_, n0, n1, n2):
 def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
     """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state)."""
     n = x.shape[0]
-    nc = st_w.shape[1]
+    nc = st_w.shape[0]
     for i in nb.prange(n):
         jt = np.zeros((nc, 3))
         _jet(x, st_ptr, st_idx, st_w, i, jt)
@@ -356,7 +375,7 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
         _coef_dot_n(jt, c0 / cn, c1 / cn, c2 / cn, cn_)
         out[st_ptr[i]] = 0.0
         for k in range(st_ptr[i] + 1, st_ptr[i + 1]):
-            out[k] = _residual_n(x, i, st_idx[k], st_ph[k], cn_, c0 / cn, c1 / cn,
+            out[k] = _residual_n(x, i, st_idx[k], st_ph[:, k], cn_, c0 / cn, c1 / cn,
                                  c2 / cn)[3]
 
 
@@ -409,9 +428,9 @@ def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
         g2 += fgrad[t, c, 2]
     for q in range(tr_ptr[j], tr_ptr[j + 1]):
         k = tr_slot[q]
-        g0 += contrib[k, 0]
-        g1 += contrib[k, 1]
-        g2 += contrib[k, 2]
+        g0 += contrib[0, k]
+        g1 += contrib[1, k]
+        g2 += contrib[2, k]
     return -g0, -g1, -g2
 
 
@@ -429,13 +448,13 @@ def variational_stages(x, ops, mat, work):
     """Everything of the variational force but the final gather: face strains, the vertex
     pass and the face gradients (work arrays)."""
     (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
-     st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner) = ops
+     st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner, vf_K) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
-    F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch, cvs = work
+    F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     face_strain(x, faces, dinv, F, eps)
     vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
-                eps, face_area, K, dual_area, ainv, rest_b, xi, phi, scratch, cvs, contrib,
-                cstress, kap, epsbar, estab)
+                eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
+                epsbar, estab)
     face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
 
 
@@ -482,7 +501,7 @@ def covariant_resultants(x, st_ptr, st_idx, st_w, rest_a, ainv, rest_b, zeta, xi
     M^ab (n,2,2) and N^ab = N*^ab - M^bg a^ad b_dg (n,2,2) (Eq. 27, 28)."""
     n = x.shape[0]
     for i in nb.prange(n):
-        jt = np.zeros((st_w.shape[1], 3))
+        jt = np.zeros((st_w.shape[0], 3))
         _jet(x, st_ptr, st_idx, st_w, i, jt)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
@@ -553,8 +572,8 @@ def covariant_force_vectors(st_ptr, st_idx, st_w, st_T, basis, chris, mres, nres
                     for p in range(2):
                         for q in range(2):
                             v += st_T[k, b, p] * st_T[k, a, q] * mres[j, p, q]
-                    dM[0, b, a] += st_w[k, 0] * v
-                    dM[1, b, a] += st_w[k, 1] * v
+                    dM[0, b, a] += st_w[0, k] * v
+                    dM[1, b, a] += st_w[1, k] * v
         for b in range(2):
             s = 0.0
             for a in range(2):
@@ -578,7 +597,7 @@ def covariant_divergence(st_ptr, st_idx, st_w, st_T, chris, nvec, dual_area, for
         for k in range(st_ptr[i], st_ptr[i + 1]):
             j = st_idx[k]
             for a in range(2):
-                w = st_w[k, a]
+                w = st_w[a, k]
                 for b in range(2):
                     tw = w * st_T[k, a, b]
                     f0 += tw * nvec[j, b, 0]

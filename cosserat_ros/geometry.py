@@ -72,8 +72,10 @@ NJET = 9
 class JetOperator:
     """Precomputed least-squares derivative weights (the discrete operators of the jet).
 
-    ``coeff[i, c] = sum_{k in st_ptr[i]:st_ptr[i+1]} st_w[k, c] * x[st_idx[k]]``, with
-    ``c`` = a_1, a_2, r_11, r_12, r_22. The transposed CSR (``tr_ptr``, ``tr_src``,
+    ``coeff[i, c] = sum_{k in st_ptr[i]:st_ptr[i+1]} st_w[c, k] * x[st_idx[k]]``, with
+    ``c`` = a_1, a_2, r_11, r_12, r_22, r_111, r_112, r_122, r_222. The weights are stored
+    coefficient-major, so one coefficient's weights over a stencil are contiguous (the
+    vertex kernel reads them as vectors). The transposed CSR (``tr_ptr``, ``tr_src``,
     ``tr_slot``) lists, for every vertex ``j``, the stencil entries ``k`` of the vertices
     ``tr_src`` whose fit uses ``x[j]``: the adjoint (a discrete divergence) is a gather.
     """
@@ -81,7 +83,7 @@ class JetOperator:
     frames: np.ndarray    # (n, 3, 3) rest chart axes E1, E2, N (rows)
     st_ptr: np.ndarray    # (n+1,) int64
     st_idx: np.ndarray    # (K,) int64, stencil vertices, centre included
-    st_w: np.ndarray      # (K, 5) float64 weights
+    st_w: np.ndarray      # (NJET, K) float64 weights, coefficient-major
     st_x: np.ndarray      # (K, 2) float64 chart coordinates of the stencil vertex
     st_omega: np.ndarray  # (K,) float64 least-squares weights, summing to 1 per vertex
     radius: np.ndarray    # (n,) float64 rms stencil radius h_i [m]
@@ -182,15 +184,15 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     st_ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(lens, out=st_ptr[1:])
     st_idx = np.empty(st_ptr[-1], dtype=np.int64)
-    st_w = np.empty((st_ptr[-1], NJET))
+    st_w = np.empty((NJET, st_ptr[-1]))
     st_x = np.zeros((st_ptr[-1], 2))
     st_omega = np.zeros(st_ptr[-1])
     for i, (nbr, w, c, om) in enumerate(stencils):
         a, b = st_ptr[i], st_ptr[i + 1]
         st_idx[a] = i
-        st_w[a] = -w.sum(axis=0)
+        st_w[:, a] = -w.sum(axis=0)
         st_idx[a + 1:b] = nbr
-        st_w[a + 1:b] = w
+        st_w[:, a + 1:b] = w.T
         st_x[a + 1:b] = c
         st_omega[a + 1:b] = om / om.sum()
     src = np.repeat(np.arange(n, dtype=np.int64), lens)
@@ -209,7 +211,7 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 @nb.njit(cache=True, parallel=True)
 def jet_coefficients(x, st_ptr, st_idx, st_w, out):
-    """out[i, c, :] = sum_k st_w[k, c] x[st_idx[k]]: a_1, a_2, r_11, r_12, r_22 (n, 5, 3)."""
+    """out[i, c, :] = sum_k st_w[c, k] x[st_idx[k]]: a_1, a_2, r_11, r_12, r_22 (n, 5, 3)."""
     n = x.shape[0]
     for i in nb.prange(n):
         for c in range(5):
@@ -217,7 +219,7 @@ def jet_coefficients(x, st_ptr, st_idx, st_w, out):
             s1 = 0.0
             s2 = 0.0
             for k in range(st_ptr[i], st_ptr[i + 1]):
-                w = st_w[k, c]
+                w = st_w[c, k]
                 j = st_idx[k]
                 s0 += w * x[j, 0]
                 s1 += w * x[j, 1]
@@ -423,7 +425,7 @@ def compute_geometry(x: np.ndarray, mesh: ClothMesh, jet: JetOperator,
                          f'got {curvature!r}')
     n = x.shape[0]
     coeff = np.empty((n, 5, 3))
-    jet_coefficients(x, jet.st_ptr, jet.st_idx, np.ascontiguousarray(jet.st_w[:, :5]), coeff)
+    jet_coefficients(x, jet.st_ptr, jet.st_idx, jet.st_w[:5], coeff)
     basis = np.empty((n, 3, 3))
     metric = np.empty((n, 2, 2))
     curv = np.empty((n, 2, 2))

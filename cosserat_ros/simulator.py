@@ -107,9 +107,16 @@ class ClothSimulator:
         self._ainv = _sym3(np.linalg.inv(rest.metric))
         self._rest_b = _sym3(rest.curvature)
         self._dinv, self._K = self._face_charts()
+        # the vertex strain average's corner maps in vertex-face order, weighted by
+        # area_t / (3 A_i): epsbar_i = sum_q vf_K[q]^T eps_t vf_K[q] (forces.py)
+        vf_w = np.sqrt(mesh.face_areas[mesh.vf_face] / (3.0 * mesh.dual_areas[
+            np.repeat(np.arange(n), np.diff(mesh.vf_ptr))]))
+        self._vf_K = np.ascontiguousarray(
+            (self._K[mesh.vf_face, mesh.vf_corner] * vf_w[:, None, None]).reshape(-1, 4))
         self._stab = np.zeros(n)
         self._st_sigma = np.zeros(len(self._jet.st_idx))
-        self._st_ph = design_matrix(self._jet.st_x[:, 0], self._jet.st_x[:, 1])
+        self._st_ph = np.ascontiguousarray(
+            design_matrix(self._jet.st_x[:, 0], self._jet.st_x[:, 1]).T)
         _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
                                      self._jet.st_w, self._st_ph, self._st_sigma)
         frames = self._jet.frames
@@ -120,15 +127,14 @@ class ClothSimulator:
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
                      self._jet.st_w, self._st_ph, self._st_sigma, self._stab,
                      self._jet.tr_ptr, self._jet.tr_slot,
-                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner)
+                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K)
         self._cov = (self._rest_a, self._st_T)
         nch = -(-n // VERTEX_CHUNK)
         smax = int(np.diff(self._jet.st_ptr).max())
         # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
         self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
-                      np.zeros((len(self._jet.st_idx), 3)), np.zeros((nch, smax, 5)),
-                      np.zeros((nch, self._jet.st_w.shape[1])))
+                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 5, smax)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
