@@ -56,8 +56,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .constants import VERTEX_CHUNK
-from .geometry import _cross, NJET
+from .geometry import _cross
 from .material import bilinear, contract
 
 __all__ = ['DIVERGENCE_METHODS']
@@ -329,13 +328,16 @@ def vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
                 epsbar, estab):
     """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
-    contrib (3,K). Parallel over chunks of VERTEX_CHUNK vertices, each with its own
-    scratch row (no allocation, no shared writes)."""
+    contrib (3,K). Parallel over ``scratch.shape[0]`` chunks of vertices, each with its
+    own scratch row (no allocation, no shared writes)."""
     n = x.shape[0]
     nch = scratch.shape[0]
+    # the chunk size follows from the scratch the caller allocated (not from a module
+    # constant, which numba's cache would freeze into the compiled code)
+    chunk = (n + nch - 1) // nch
     for ch in nb.prange(nch):
         sc = scratch[ch]
-        for i in range(ch * VERTEX_CHUNK, min(n, (ch + 1) * VERTEX_CHUNK)):
+        for i in range(ch * chunk, min(n, (ch + 1) * chunk)):
             _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
                     vf_corner, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib,
                     cstress, kap, epsbar, estab)
