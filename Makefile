@@ -8,6 +8,7 @@ PY := $(VENV)/bin/python
 ENV := AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 DEPS_STAMP := $(VENV)/.deps-installed
 PKG_STAMP := $(VENV)/.pkg-installed
+BENCH_STAMP := $(VENV)/.bench-installed
 PKG_SOURCES := $(shell find cosserat_ros config resource -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
@@ -41,7 +42,11 @@ test: $(PKG_STAMP)
 validate: $(PKG_STAMP)
 	$(ENV) $(PY) -m cosserat_ros.validate --out docs
 
-bench: $(PKG_STAMP)
+$(BENCH_STAMP): $(DEPS_STAMP) requirements-bench.txt
+	$(PY) -m pip install --quiet -r requirements-bench.txt
+	touch $@
+
+bench: $(PKG_STAMP) $(BENCH_STAMP)
 	$(ENV) $(PY) -m cosserat_ros.bench
 
 clean:

@@ -16,6 +16,8 @@ setup(
         ('share/' + package_name + '/config/meshes', glob('config/meshes/*')),
     ],
     install_requires=['setuptools'],
+    # the peer engine of the benchmark only (requirements-bench.txt pins it)
+    extras_require={'bench': ['mujoco']},
     zip_safe=False,
     maintainer='cosserat_ros developers',
     maintainer_email='cosserat-ros@example.com',

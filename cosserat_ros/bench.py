@@ -1,30 +1,48 @@
-"""``make bench`` / ``python -m cosserat_ros.bench``: cost of a step, printed as a table.
+"""``make bench`` / ``python -m cosserat_ros.bench``: what a step costs, printed as tables.
 
-The scene of issue 6: a 1 m square sheet, N x N grid, all four edges pinned, gravity,
-density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3, D = 1e-4 N m (zeta = 3 E h / 16, xi = D / 6).
-For each N: median ms/step of repeated batches after warm-up (forces + integration, no
-publishing), steps/s, the largest stable dt (``critical_dt``), the real-time factor at that
-dt, the ratio to the seed's Table 1 (7.52 / 24.97 / 70.87 ms at 20 / 40 / 80), the cost of
-building one mesh message, first-call (compile or cache load) time, threads, and memory of
-the state and precomputed operators per vertex. Shared machines are noisy: compare ratios
-measured in one run.
+The scene of issue 6 (:mod:`.peer_mujoco`): a 1 m square sheet, N x N grid, all four edges
+pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3, D = 1e-4 N m
+(zeta = 3 E h / 16, xi = D / 6). Shared machines are noisy: compare ratios measured in one
+run. Three parts:
+
+1. ``ours``: for each N, the median ms/step of repeated batches after warm-up (forces +
+   integration, no publishing), steps/s, the largest stable dt (``critical_dt``), the
+   real-time factor at 0.9 of it, the ratio to the seed's Table 1 (7.52 / 24.97 / 70.87 ms
+   at 20 / 40 / 80), the cost of building one mesh message, the first-call (compile or
+   cache load) time, memory of state and operators per vertex, threads.
+2. ``peer`` (needs the ``mujoco`` wheel): MuJoCo's flex on the same scene, Euler and
+   ``discrete``, at our dt and at its own largest stable dt, beside ours; and the settled
+   centre sag of both (about 0.0354 m).
+3. ``node``: the installed ``cloth_node`` started as ``ros2 run`` starts it: process start to
+   first mesh message with a cold and a warm compile cache, and the real-time factor of a
+   40 x 40 cloth publishing at 30 Hz.
 """
 from __future__ import annotations
 
 import argparse
 import os
 import platform
+import subprocess
+import sys
+import tempfile
 import time
 
 import numba
 import numpy as np
 
+from . import peer_mujoco as peer
 from .mesh import grid_mesh
 from .messages import colormap, mesh_marker_array
 from .simulator import ClothSimulator, Material
 
 SEED_MS = {20: 7.52, 40: 24.97, 80: 70.87}
-SCENE = Material.from_plate(youngs_2d=500.0, bending=1e-4, density=0.1)
+SCENE = Material.from_plate(youngs_2d=peer.YOUNGS_2D, bending=peer.BENDING,
+                            density=peer.DENSITY)
+#: damping rate [1/s] used to settle the sheet for the sag comparison (both engines)
+SETTLE_RATE = 20.0
+SETTLE_TIME = 2.0      # [s]
+#: the explicit runs step at this fraction of our critical dt
+DT_FRACTION = 0.9
 
 
 def _bytes(sim: ClothSimulator) -> int:
@@ -33,16 +51,29 @@ def _bytes(sim: ClothSimulator) -> int:
     return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
 
+def scene_simulator(n: int, damping: float = 0.0) -> ClothSimulator:
+    """The benchmark sheet, all edges pinned, under gravity, at DT_FRACTION of critical."""
+    mesh = grid_mesh(n, n)
+    mat = Material.from_plate(youngs_2d=peer.YOUNGS_2D, bending=peer.BENDING,
+                              density=peer.DENSITY, damping=damping)
+    sim = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
+    sim.pin(mesh.boundary_vertices)
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    sim.dt = DT_FRACTION * sim.critical_dt()
+    return sim
+
+
 def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int = 7):
+    """Our step cost on the scene (see the module docstring, part 1)."""
     mesh = grid_mesh(n, n, pattern=pattern, seed=0)
     t0 = time.perf_counter()
     sim = ClothSimulator(mesh, SCENE, dt=1e-5, check_dt=False)
     sim.pin(mesh.boundary_vertices)
-    sim.gravity = (0.0, 0.0, -9.81)
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
     sim.step(1)
     first = time.perf_counter() - t0
     crit = sim.critical_dt()
-    sim.dt = 0.9 * crit
+    sim.dt = DT_FRACTION * crit
     t = time.perf_counter()
     sim.step(5)
     per = (time.perf_counter() - t) / 5
@@ -60,11 +91,18 @@ def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int =
         mesh_marker_array(sim.positions, mesh.faces, col, 0, 'world')
     pub_ms = 1e3 * (time.perf_counter() - t) / 5
     return {'N': n, 'vertices': mesh.n_vertices, 'pattern': pattern, 'ms': ms,
-            'steps_s': 1e3 / ms, 'crit_dt': crit, 'rtf': 0.9 * crit / (ms * 1e-3),
+            'steps_s': 1e3 / ms, 'crit_dt': crit, 'dt': sim.dt,
+            'rtf': sim.dt / (ms * 1e-3),
             'seed_ratio': SEED_MS[n] / ms if n in SEED_MS else float('nan'),
             'publish_ms': pub_ms, 'first_call_s': first,
-            'bytes_per_vertex': _bytes(sim) / mesh.n_vertices,
-            'sag': -float(sim.positions[:, 2].min())}
+            'bytes_per_vertex': _bytes(sim) / mesh.n_vertices}
+
+
+def settled_sag(n: int) -> float:
+    """Our centre sag [m] after SETTLE_TIME s of damped settling."""
+    sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY)
+    sim.step(int(round(SETTLE_TIME / sim.dt)))
+    return -float(sim.positions[:, 2].min())
 
 
 def machine() -> str:
@@ -78,24 +116,200 @@ def machine() -> str:
             f'({numba.get_num_threads()} threads, layer set on first parallel call)')
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description='Step cost of the cloth simulator.')
-    ap.add_argument('--sizes', type=int, nargs='*', default=[20, 40, 80, 160, 320])
-    ap.add_argument('--pattern', default='regular')
-    a = ap.parse_args(argv)
-    print(f'# machine: {machine()}')
-    head = ('N', 'vertices', 'pattern', 'ms/step', 'steps/s', 'crit dt [s]', 'RTF@0.9crit',
-            'x seed', 'publish ms', 'first call s', 'B/vertex', 'threads')
+def _table(head):
     print('| ' + ' | '.join(head) + ' |')
-    print('|' + '---|' * len(head))
-    for n in a.sizes:
-        r = bench(n, a.pattern)
+    print('|' + '---|' * len(head), flush=True)
+
+
+def _f(x: float, fmt: str) -> str:
+    return '-' if x != x else format(x, fmt)
+
+
+def part_ours(sizes, pattern):
+    print('\n## ours\n')
+    _table(('N', 'vertices', 'pattern', 'ms/step', 'steps/s', 'crit dt [s]',
+            f'RTF@{DT_FRACTION}crit', 'x seed', 'publish ms', 'first call s', 'B/vertex',
+            'threads'))
+    rows = {}
+    for n in sizes:
+        r = bench(n, pattern)
+        rows[n] = r
         print(f"| {r['N']} | {r['vertices']} | {r['pattern']} | {r['ms']:.3f} | "
               f"{r['steps_s']:.0f} | {r['crit_dt']:.2e} | {r['rtf']:.2f} | "
-              f"{r['seed_ratio']:.0f} | {r['publish_ms']:.2f} | {r['first_call_s']:.1f} | "
-              f"{r['bytes_per_vertex']:.0f} | {numba.get_num_threads()} |", flush=True)
-    print(f'# threading layer: {numba.threading_layer()}')
+              f"{_f(r['seed_ratio'], '.0f')} | {r['publish_ms']:.2f} | "
+              f"{r['first_call_s']:.1f} | {r['bytes_per_vertex']:.0f} | "
+              f"{numba.get_num_threads()} |", flush=True)
+    return rows
+
+
+def part_peer(ours, sizes, sag_sizes):
+    version = peer.available()
+    if version is None:
+        print('\n## peer\n\nmujoco is not installed (pip install -r requirements-bench.txt); '
+              'skipped.')
+        return
+    print(f'\n## peer: MuJoCo {version} flex, one thread, on the same scene\n')
+    print('"at our dt": stepping at our dt (0.9 of our critical dt); "own stable dt": the '
+          'largest dt of a 1.25x ladder that stays bounded for 400 steps from noise '
+          '(`discrete` is tried from 1/60 s down). "x ours" = its ms/step / our ms/step at '
+          'the same dt.\n')
+    _table(('N', 'engine', 'ms/step at our dt', 'x ours', 'own stable dt [s]',
+            'ms/step there', 'RTF there'))
+    for n in sizes:
+        r = ours[n]
+        print(f"| {n} | ours (explicit, 2 threads) | {r['ms']:.3f} | 1 | "
+              f"{r['crit_dt']:.2e} | {r['ms']:.3f} | {r['crit_dt'] / (r['ms'] * 1e-3):.2f} |",
+              flush=True)
+        for integ, start in (('Euler', r['crit_dt'] / 0.8 * 1.25 ** 2), ('discrete', 1 / 60)):
+            same = (peer.ms_per_step(n, integ, r['dt'])
+                    if peer.stable(n, integ, r['dt']) else float('nan'))
+            dt = peer.largest_stable_dt(n, integ, start)
+            there = peer.ms_per_step(n, integ, dt) if dt == dt else float('nan')
+            print(f"| {n} | MuJoCo {integ} | {_f(same, '.3f')} | {_f(same / r['ms'], '.2f')} "
+                  f"| {_f(dt, '.2e')} | {_f(there, '.3f')} | "
+                  f"{_f(dt / (there * 1e-3), '.2f')} |", flush=True)
+    if not sag_sizes:
+        return
+    print(f'\nCentre sag after {SETTLE_TIME} s of settling with damping rate '
+          f'{SETTLE_RATE} 1/s (mass-proportional in both engines):\n')
+    _table(('N', 'ours [m]', 'MuJoCo Euler [m]', 'MuJoCo discrete [m]'))
+    for n in sag_sizes:
+        dt = scene_simulator(n).dt
+        euler_dt = peer.largest_stable_dt(n, 'Euler', dt)
+        print(f'| {n} | {settled_sag(n):.5f} | '
+              f"{_f(peer.settled_sag(n, 'Euler', euler_dt, SETTLE_TIME, SETTLE_RATE), '.5f')}"
+              f" | {_f(peer.settled_sag(n, 'discrete', 1 / 60, SETTLE_TIME, SETTLE_RATE), '.5f')}"
+              ' |', flush=True)
+
+
+# --------------------------------------------------------------------------- the node
+
+def _node_params(path: str, n: int, material: Material, dt: float, pinned: str):
+    with open(path, 'w') as fh:
+        fh.write(f"""cloth_node:
+  ros__parameters:
+    mesh: {{nx: {n}, ny: {n}}}
+    material: {{zeta: {material.zeta!r}, xi: {material.xi!r}, phi: {material.phi!r},
+                density: {material.density!r}, damping: {material.damping!r}}}
+    dt: {float(dt)!r}
+    publish_rate: 30.0
+    pinned: {{sets: [{pinned}]}}
+    status_period: 0.0
+""")
+
+
+def run_node(params: str, watch_s: float, env=None):
+    """Start the installed cloth_node as ``ros2 run`` does; return (seconds from process
+    start to the first mesh message, mesh messages per second, real-time factor from the
+    energy topic's sim_time over ``watch_s`` s after the first message)."""
+    import rclpy
+    from ament_index_python.packages import get_package_prefix
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from visualization_msgs.msg import MarkerArray
+
+    exe = os.path.join(get_package_prefix('cosserat_ros'), 'lib', 'cosserat_ros', 'cloth_node')
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('bench_client', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    meshes, energies = [], []
+    # raw: counting the meshes must not cost the machine a Python deserialisation each
+    node.create_subscription(MarkerArray, '/cloth_node/mesh',
+                             lambda m: meshes.append(time.monotonic()), 10, raw=True)
+
+    def on_energy(msg):
+        vals = {kv.key: kv.value for kv in msg.status[0].values}
+        energies.append((time.monotonic(), float(vals['sim_time'])))
+    node.create_subscription(DiagnosticArray, '/cloth_node/energy', on_energy, 10)
+    t0 = time.monotonic()
+    proc = subprocess.Popen([exe, '--ros-args', '--params-file', params], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        while not meshes and proc.poll() is None and time.monotonic() - t0 < 300:
+            ex.spin_once(timeout_sec=0.01)
+        if not meshes:
+            raise RuntimeError('cloth_node published no mesh: ' + (proc.stderr.read()
+                                                                   if proc.poll() else ''))
+        first = meshes[0] - t0
+        end = time.monotonic() + watch_s
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.01)
+        # the first second warms the executor and the step-cost estimate: skip it
+        win = [e for e in energies if e[0] >= meshes[0] + 1.0]
+        rtf = ((win[-1][1] - win[0][1]) / (win[-1][0] - win[0][0])
+               if len(win) > 2 else float('nan'))
+        rate = (sum(1 for m in meshes if m >= meshes[0] + 1.0) / (watch_s - 1.0)
+                if watch_s > 1 else float('nan'))
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    return first, rate, rtf
+
+
+def part_node(watch_s: float):
+    os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    print('\n## node: the installed cloth_node, 40 x 40, publishing at 30 Hz\n')
+    demo = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)  # cloth.yaml
+    cases = []
+    for name, mat, pinned in (('config/cloth.yaml material, two corners pinned', demo,
+                               'top_corners'),
+                              ('issue 6 scene, all edges pinned', SCENE, 'boundary')):
+        mesh = grid_mesh(40, 40)
+        probe = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
+        if pinned == 'boundary':
+            probe.pin(mesh.boundary_vertices)
+        crit = probe.critical_dt()
+        for dt in sorted({2e-4, round(DT_FRACTION * crit, 7)}):
+            if dt <= crit:
+                cases.append((name, mat, pinned, dt, crit))
+    with tempfile.TemporaryDirectory() as tmp:
+        params = os.path.join(tmp, 'p.yaml')
+        _node_params(params, 40, demo, 2e-4, 'top_corners')
+        cold_env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, 'numba-cache'))
+        cold = run_node(params, 0.0, cold_env)[0]
+        warm = run_node(params, 0.0, cold_env)[0]
+        print(f'Start-up, process start to first mesh message: {cold:.1f} s with an empty '
+              f'compile cache (NUMBA_CACHE_DIR pointed at a new directory), {warm:.1f} s '
+              'warm (second start, same cache).\n')
+        _table(('material / pins', 'dt [s]', 'dt / critical', 'mesh msgs/s', 'RTF'))
+        for name, mat, pinned, dt, crit in cases:
+            _node_params(params, 40, mat, dt, pinned)
+            _, rate, rtf = run_node(params, watch_s)
+            print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.2f} |',
+                  flush=True)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description='Step cost of the cloth simulator, beside '
+                                 'MuJoCo flex, and the node start-up and real-time factor.')
+    ap.add_argument('--sizes', type=int, nargs='*', default=[20, 40, 80, 160, 320])
+    ap.add_argument('--pattern', default='regular')
+    ap.add_argument('--peer-sizes', type=int, nargs='*', default=[20, 40, 80, 160],
+                    help='N for the MuJoCo comparison (subset of --sizes)')
+    ap.add_argument('--sag-sizes', type=int, nargs='*', default=[20, 40])
+    ap.add_argument('--node-seconds', type=float, default=6.0,
+                    help='how long each node case is watched (0 = skip the node part)')
+    a = ap.parse_args(argv)
+    print(f'# machine: {machine()}; python {platform.python_version()}')
+    ours = part_ours(a.sizes, a.pattern)
+    peer_sizes = [n for n in a.peer_sizes if n in ours]
+    if peer_sizes or a.sag_sizes:
+        part_peer(ours, peer_sizes, a.sag_sizes)
+    if a.node_seconds > 0:
+        part_node(a.node_seconds)
+    print(f'\n# threading layer: {numba.threading_layer()}')
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -188,6 +188,7 @@ class ClothNode(Node):
         self.paused = False
         self.diverged: Optional[str] = None
         self._step_cost = 0.0
+        self._publish_cost = 0.0
         self._rtf = 1.0
         self._lagging = False
         self._window = [time.monotonic(), 0.0]   # wall start, sim advanced since
@@ -494,7 +495,9 @@ class ClothNode(Node):
         if not self.paused and self.diverged is None:
             elapsed = self.period if self._last_tick is None else now - self._last_tick
             wanted = max(1, int(round(min(elapsed, 4 * self.period) / self.sim.dt)))
-            budget = 0.8 * self.period
+            # stepping gets the period minus what publishing took (smoothed) and 5% slack
+            # for the executor, never less than a third of the period
+            budget = max(self.period / 3, 0.95 * self.period - self._publish_cost)
             limit = max(1, int(budget / self._step_cost)) if self._step_cost > 0 else 1
             n = min(wanted, limit)
             self._lagging = n < wanted
@@ -515,7 +518,11 @@ class ClothNode(Node):
         if wall >= 1.0:
             self._rtf = self._window[1] / wall if not self.paused else 0.0
             self._window = [now, 0.0]
+        t1 = time.perf_counter()
         self.publish_state()
+        cost = time.perf_counter() - t1
+        self._publish_cost = cost if self._publish_cost == 0 else (
+            0.8 * self._publish_cost + 0.2 * cost)
         if now - self._last_diag >= 1.0:
             self._last_diag = now
             self.diag_pub.publish(self.diagnostics())
@@ -605,6 +612,7 @@ class ClothNode(Node):
             level, msg = DiagnosticStatus.OK, 'running'
         vals = {'real_time_factor': float(self._rtf),
                 'step_cost_ms': float(self._step_cost * 1e3),
+                'publish_cost_ms': float(self._publish_cost * 1e3),
                 'dt': float(self.sim.dt), 'critical_dt': float(crit),
                 'dt_over_critical': float(self.sim.dt / crit),
                 'vertices': self.mesh.n_vertices, 'faces': self.mesh.n_faces,

@@ -1,0 +1,147 @@
+"""The benchmark scene of issue 6, and the peer engine on it: MuJoCo's 2-D flex.
+
+MuJoCo (the ``mujoco`` wheel) is a dev-only extra (``requirements-bench.txt``, installed
+by ``make bench``); nothing in the simulator or the node imports it, and this module
+imports it only inside the functions that run it. The scene is the one of :mod:`.bench`: a 1 m
+square, N x N grid, all four edges pinned, gravity, areal density 0.1 kg/m^2,
+E h = 500 N/m, nu = 1/3, D = 1e-4 N m. MuJoCo takes a 3-D Young's modulus and a
+thickness, so ``h = sqrt(12 (1 - nu^2) D / (E h))`` = 1.46 mm and ``E = (E h) / h``.
+
+Every vertex of MuJoCo's grid carries mass ``density * spacing^2`` (the flexcomp ``mass``
+is spread evenly over the grid), which is what the lumped dual areas of our regular grid
+give the interior vertices; the pinned edge carries no dof. Damping, where asked for,
+is per-dof damping ``gamma * m`` (the same mass-proportional damping as our ``damping``).
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Optional
+
+import numpy as np
+
+#: the scene (bench.SCENE is built from these)
+YOUNGS_2D = 500.0      # E h [N/m]
+BENDING = 1e-4         # D [N m]
+POISSON = 1.0 / 3.0
+DENSITY = 0.1          # [kg/m^2]
+GRAVITY = 9.81         # [m/s^2]
+
+#: a probe diverged when a speed exceeds this [m/s] (the membrane wave speed is 75 m/s)
+PROBE_VMAX = 100.0
+
+
+def available() -> Optional[str]:
+    """The mujoco version, or None when the wheel is not installed."""
+    try:
+        import mujoco
+    except ImportError:
+        return None
+    return mujoco.__version__
+
+
+def scene_xml(n: int, integrator: str, dt: float) -> str:
+    """MJCF of the benchmark sheet: flexcomp grid, dim 2, elastic2d stretch + bend."""
+    dt = float(dt)
+    thickness = math.sqrt(12.0 * (1.0 - POISSON ** 2) * BENDING / YOUNGS_2D)
+    young = YOUNGS_2D / thickness
+    h = 1.0 / n
+    mass = DENSITY * h * h * (n + 1) ** 2
+    pins = ''.join(f'<pin gridrange="{a}"/>' for a in (
+        f'0 0 {n} 0', f'0 {n} {n} {n}', f'0 0 0 {n}', f'{n} 0 {n} {n}'))
+    return f"""<mujoco model="sheet{n}">
+  <option timestep="{dt!r}" integrator="{integrator}" gravity="0 0 {-GRAVITY}"/>
+  <worldbody>
+    <flexcomp name="sheet" type="grid" count="{n + 1} {n + 1} 1" spacing="{h!r} {h!r} 1"
+              dim="2" radius="0.001" mass="{mass!r}">
+      <elasticity young="{young!r}" poisson="{POISSON!r}" thickness="{thickness!r}"
+                  elastic2d="both"/>
+      <contact contype="0" conaffinity="0"/>
+      <edge equality="false"/>
+      {pins}
+    </flexcomp>
+  </worldbody>
+</mujoco>"""
+
+
+def _count_warning(message: str) -> None:
+    """MuJoCo's warning handler for the probes: an unstable probe is expected, its
+    warning is read from ``data.warning`` instead of printed."""
+
+
+def build(n: int, integrator: str, dt: float, damping_rate: float = 0.0):
+    """(model, data) of the scene; ``damping_rate`` gamma [1/s] adds dof damping gamma m."""
+    import mujoco
+    mujoco.set_mju_user_warning(_count_warning)
+    model = mujoco.MjModel.from_xml_string(scene_xml(n, integrator, dt))
+    if damping_rate > 0:
+        model.dof_damping[:] = damping_rate * DENSITY / n ** 2
+    return model, mujoco.MjData(model)
+
+
+def _bad(model, data) -> bool:
+    import mujoco
+    v = data.qvel
+    return (not np.all(np.isfinite(data.qpos)) or not np.all(np.isfinite(v))
+            or float(np.abs(v).max(initial=0.0)) > PROBE_VMAX
+            or data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0)
+
+
+def stable(n: int, integrator: str, dt: float, steps: int = 400) -> bool:
+    """Does the sheet stay bounded for ``steps`` steps from rest, seeded with 1 um/s noise
+    on every dof (so an unstable mode has something to grow from)?"""
+    import mujoco
+    model, data = build(n, integrator, dt)
+    data.qvel[:] = 1e-6 * np.random.default_rng(0).standard_normal(model.nv)
+    done = 0
+    while done < steps:
+        k = min(20, steps - done)
+        mujoco.mj_step(model, data, nstep=k)
+        done += k
+        if _bad(model, data):
+            return False
+    return True
+
+
+def largest_stable_dt(n: int, integrator: str, start: float, factor: float = 1.25,
+                      tries: int = 10) -> float:
+    """Largest dt of the ladder ``start * factor**-k`` (k = 0, 1, ...) that is stable; nan
+    if none of ``tries`` rungs is."""
+    dt = start
+    for _ in range(tries):
+        if stable(n, integrator, dt):
+            return dt
+        dt /= factor
+    return float('nan')
+
+
+def ms_per_step(n: int, integrator: str, dt: float, batch_s: float = 0.2,
+                repeats: int = 5) -> float:
+    """Median wall time of one step [ms] over ``repeats`` batches (the sheet falling from
+    rest under gravity, as our own benchmark), nan if the run goes bad."""
+    import mujoco
+    model, data = build(n, integrator, dt)
+    mujoco.mj_step(model, data, nstep=2)
+    t = time.perf_counter()
+    mujoco.mj_step(model, data, nstep=3)
+    per = (time.perf_counter() - t) / 3
+    k = max(1, int(batch_s / per))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        mujoco.mj_step(model, data, nstep=k)
+        times.append((time.perf_counter() - t) / k)
+    if _bad(model, data):
+        return float('nan')
+    return 1e3 * float(np.median(times))
+
+
+def settled_sag(n: int, integrator: str, dt: float, duration: float = 2.0,
+                damping_rate: float = 20.0) -> float:
+    """Centre sag [m] after ``duration`` s of damped settling (-min z of the sheet)."""
+    import mujoco
+    model, data = build(n, integrator, dt, damping_rate)
+    mujoco.mj_step(model, data, nstep=max(1, int(round(duration / dt))))
+    if _bad(model, data):
+        return float('nan')
+    return -float(data.flexvert_xpos[:, 2].min())
