@@ -139,9 +139,9 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
 
 
 @kernel(inline='always')
-def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
             eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar,
-            estab):
+            estab, energy):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
 
     Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
@@ -178,6 +178,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     D2 = sc[2, :ns]
     DN = sc[3, :ns]
     H = sc[4, :ns]
+    DD = sc[5, :ns]
     xi0 = x[i, 0]
     xi1 = x[i, 1]
     xi2 = x[i, 2]
@@ -265,27 +266,21 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
     g11 = -A * m11
     g12 = -2.0 * A * m12
     g22 = -A * m22
-    # pass 3: residuals along the normal rho_k . n = dn_k - phi_k . q and
-    # h_k = dE_i/d(dn_k)
-    f0_ = st_ph[0, p0:p1]
-    f1_ = st_ph[1, p0:p1]
-    f2_ = st_ph[2, p0:p1]
-    f3_ = st_ph[3, p0:p1]
-    f4_ = st_ph[4, p0:p1]
-    f5_ = st_ph[5, p0:p1]
-    f6_ = st_ph[6, p0:p1]
-    f7_ = st_ph[7, p0:p1]
-    f8_ = st_ph[8, p0:p1]
+    # pass 3: residuals along the normal rho_k . n = dn_k - phi_k . q (the design row from
+    # the chart coordinates) and h_k = dE_i/d(dn_k)
+    uu = st_uv[0, p0:p1]
+    vv = st_uv[1, p0:p1]
     sig = st_sigma[p0:p1]
     om = stab[i] / ns
-    e = 0.0
     for s in range(ns):
-        r = DN[s] - (f0_[s] * q0 + f1_[s] * q1 + f2_[s] * q2 + f3_[s] * q3 + f4_[s] * q4
-                     + f5_[s] * q5 + f6_[s] * q6 + f7_[s] * q7 + f8_[s] * q8)
-        dd = r - sig[s]
-        e += dd * dd
+        dd = DN[s] - _phi_dot(uu[s], vv[s], q0, q1, q2, q3, q4, q5, q6, q7, q8) - sig[s]
+        DD[s] = dd
         H[s] = 2.0 * om * dd + w2[s] * g11 + w3[s] * g12 + w4[s] * g22
-    estab[i] = om * e
+    if energy:      # the residual energy only when asked for (not in the step)
+        e = 0.0
+        for s in range(ns):
+            e += DD[s] * DD[s]
+        estab[i] = om * e
     # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
     v0 = 0.0
     v1 = 0.0
@@ -323,9 +318,9 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, 
 
 
 @kernel(parallel=True)
-def vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
                 eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
-                epsbar, estab):
+                epsbar, estab, energy):
     """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
     contrib (3,K). Parallel over ``scratch.shape[0]`` chunks of vertices, each with its
@@ -338,34 +333,23 @@ def vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
     for ch in nb.prange(nch):
         sc = scratch[ch]
         for i in range(ch * chunk, min(n, (ch + 1) * chunk)):
-            _vertex(i, x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face,
+            _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
                     vf_corner, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib,
-                    cstress, kap, epsbar, estab)
+                    cstress, kap, epsbar, estab, energy)
 
 
 @kernel(inline='always')
-def _coef_dot_n(jt, n0, n1, n2, out):
-    """out[c] = coef_c . n for every jet coefficient."""
-    for c in range(jt.shape[0]):
-        out[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
-
-
-@kernel(inline='always')
-def _residual_n(x, i, j, ph, cn_, n0, n1, n2):
-    """Offset d = x_j - x_i and the fit residual along the normal,
-    rho . n = d . n - sum_c phi_c (coef_c . n): returns (d0, d1, d2, rho . n)."""
-    d0 = x[j, 0] - x[i, 0]
-    d1 = x[j, 1] - x[i, 1]
-    d2 = x[j, 2] - x[i, 2]
-    s = 0.0
-    for c in range(ph.shape[0]):
-        s += ph[c] * cn_[c]
-    return d0, d1, d2, d0 * n0 + d1 * n1 + d2 * n2 - s
+def _phi_dot(u, v, q0, q1, q2, q3, q4, q5, q6, q7, q8):
+    """phi(u, v) . q for the cubic design row phi = (u, v, u^2/2, uv, v^2/2, u^3/6, u^2 v/2,
+    u v^2/2, v^3/6) (geometry.design_matrix), in Horner form."""
+    return (u * (q0 + u * (0.5 * q2 + u * (q5 / 6.0) + v * (0.5 * q6)) + v * (q3 + v * (0.5 * q7)))
+            + v * (q1 + v * (0.5 * q4 + v * (q8 / 6.0))))
 
 
 @kernel(parallel=True)
-def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
-    """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state)."""
+def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_uv, out):
+    """out[k] = rho_k . n_i for every stencil entry (the sigma_k of the rest state), with
+    the arithmetic of the vertex pass."""
     n = x.shape[0]
     nc = st_w.shape[0]
     for i in nb.prange(n):
@@ -373,12 +357,18 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_ph, out):
         _jet(x, st_ptr, st_idx, st_w, i, jt)
         c0, c1, c2 = _cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        cn_ = np.zeros(nc)
-        _coef_dot_n(jt, c0 / cn, c1 / cn, c2 / cn, cn_)
+        n0 = c0 / cn
+        n1 = c1 / cn
+        n2 = c2 / cn
+        q = np.zeros(nc)
+        for c in range(nc):
+            q[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
         out[st_ptr[i]] = 0.0
         for k in range(st_ptr[i] + 1, st_ptr[i + 1]):
-            out[k] = _residual_n(x, i, st_idx[k], st_ph[:, k], cn_, c0 / cn, c1 / cn,
-                                 c2 / cn)[3]
+            j = st_idx[k]
+            dn = (x[j, 0] - x[i, 0]) * n0 + (x[j, 1] - x[i, 1]) * n1 + (x[j, 2] - x[i, 2]) * n2
+            out[k] = dn - _phi_dot(st_uv[0, k], st_uv[1, k], q[0], q[1], q[2], q[3], q[4],
+                                   q[5], q[6], q[7], q[8])
 
 
 @kernel(parallel=True)
@@ -446,24 +436,26 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, f
 
 
 @kernel()
-def variational_stages(x, ops, mat, work):
+def variational_stages(x, ops, mat, work, energy):
     """Everything of the variational force but the final gather: face strains, the vertex
-    pass and the face gradients (work arrays)."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_ph,
+    pass and the face gradients (work arrays); ``energy`` also fills the jet residual
+    energy estab."""
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_uv,
      st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner, vf_K) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     face_strain(x, faces, dinv, F, eps)
-    vertex_pass(x, st_ptr, st_idx, st_w, st_ph, st_sigma, stab, vf_ptr, vf_face, vf_corner,
+    vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
                 eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
-                epsbar, estab)
+                epsbar, estab, energy)
     face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
 
 
 @kernel()
-def variational_forces(x, ops, mat, work, force):
-    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
-    variational_stages(x, ops, mat, work)
+def variational_forces(x, ops, mat, work, force, energy=False):
+    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x
+    (and, with ``energy``, the jet residual energy in the work arrays)."""
+    variational_stages(x, ops, mat, work, energy)
     vf_ptr, vf_face, vf_corner = ops[15], ops[16], ops[17]
     gather_forces(vf_ptr, vf_face, vf_corner, work[6], ops[13], ops[14], work[7], force)
 

@@ -114,7 +114,7 @@ def run_steps(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
     coupling, stencil gradients), face gradients, and gather + update."""
     for s in range(nsteps):
         if method == METHOD_VARIATIONAL:
-            variational_stages(x, ops, mat, work)
+            variational_stages(x, ops, mat, work, False)
             bad = gather_integrate(ops, work, x, v, force, f_applied, mass, damp, pinned,
                                    gravity, dt, vmax2, acc)
         else:

@@ -30,7 +30,7 @@ from .constants import (CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILI
                         VERTEX_CHUNK)
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
-                       design_matrix, Geometry)
+                       Geometry)
 from .integrator import (internal_forces as _internal_forces, METHOD_COVARIANT,
                          METHOD_VARIATIONAL, run_steps, stability_limit)
 from .material import Material
@@ -115,17 +115,16 @@ class ClothSimulator:
             (self._K[mesh.vf_face, mesh.vf_corner] * vf_w[:, None, None]).reshape(-1, 4))
         self._stab = np.zeros(n)
         self._st_sigma = np.zeros(len(self._jet.st_idx))
-        self._st_ph = np.ascontiguousarray(
-            design_matrix(self._jet.st_x[:, 0], self._jet.st_x[:, 1]).T)
+        self._st_uv = np.ascontiguousarray(self._jet.st_x.T)
         _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
-                                     self._jet.st_w, self._st_ph, self._st_sigma)
+                                     self._jet.st_w, self._st_uv, self._st_sigma)
         frames = self._jet.frames
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._st_ph, self._st_sigma, self._stab,
+                     self._jet.st_w, self._st_uv, self._st_sigma, self._stab,
                      self._jet.tr_ptr, self._jet.tr_slot,
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K)
         self._cov = (self._rest_a, self._st_T)
@@ -134,7 +133,7 @@ class ClothSimulator:
         # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
         self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
-                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 5, smax)))
+                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 6, smax)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -425,7 +424,7 @@ class ClothSimulator:
         """:meth:`energy` and :meth:`energy_densities` from one force evaluation."""
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
-        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
+        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f, True)
         _, eps, _, kap, epsbar, estab = self._work[:6]
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
