@@ -183,11 +183,6 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     xi1 = x[i, 1]
     xi2 = x[i, 2]
     # pass 1: offsets d_k and the tangent vectors a_1, a_2 (Eq. 8)
-    for s in range(ns):
-        j = idx[s]
-        D0[s] = x[j, 0] - xi0
-        D1[s] = x[j, 1] - xi1
-        D2[s] = x[j, 2] - xi2
     a10 = 0.0
     a11 = 0.0
     a12 = 0.0
@@ -195,22 +190,26 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     a21 = 0.0
     a22 = 0.0
     for s in range(ns):
-        a10 += w0[s] * D0[s]
-        a11 += w0[s] * D1[s]
-        a12 += w0[s] * D2[s]
-        a20 += w1[s] * D0[s]
-        a21 += w1[s] * D1[s]
-        a22 += w1[s] * D2[s]
+        j = idx[s]
+        d0 = x[j, 0] - xi0
+        d1 = x[j, 1] - xi1
+        d2 = x[j, 2] - xi2
+        D0[s] = d0
+        D1[s] = d1
+        D2[s] = d2
+        a10 += w0[s] * d0
+        a11 += w0[s] * d1
+        a12 += w0[s] * d2
+        a20 += w1[s] * d0
+        a21 += w1[s] * d1
+        a22 += w1[s] * d2
     c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
     cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     n0 = c0 / cn
     n1 = c1 / cn
     n2 = c2 / cn
-    # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab (Eq. 11)
-    for s in range(ns):
-        DN[s] = D0[s] * n0 + D1[s] * n1 + D2[s] * n2
-    q0 = 0.0
-    q1 = 0.0
+    # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab
+    # (Eq. 11). q_1 = a_1 . n and q_2 = a_2 . n vanish.
     q2 = 0.0
     q3 = 0.0
     q4 = 0.0
@@ -219,9 +218,8 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     q7 = 0.0
     q8 = 0.0
     for s in range(ns):
-        dn = DN[s]
-        q0 += w0[s] * dn
-        q1 += w1[s] * dn
+        dn = D0[s] * n0 + D1[s] * n1 + D2[s] * n2
+        DN[s] = dn
         q2 += w2[s] * dn
         q3 += w3[s] * dn
         q4 += w4[s] * dn
@@ -273,7 +271,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     sig = st_sigma[p0:p1]
     om = stab[i] / ns
     for s in range(ns):
-        dd = DN[s] - _phi_dot(uu[s], vv[s], q0, q1, q2, q3, q4, q5, q6, q7, q8) - sig[s]
+        dd = DN[s] - _phi_dot(uu[s], vv[s], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8) - sig[s]
         DD[s] = dd
         H[s] = 2.0 * om * dd + w2[s] * g11 + w3[s] * g12 + w4[s] * g22
     if energy:      # the residual energy only when asked for (not in the step)
@@ -285,36 +283,32 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     v0 = 0.0
     v1 = 0.0
     v2 = 0.0
+    hs = 0.0
     for s in range(ns):
         v0 += H[s] * D0[s]
         v1 += H[s] * D1[s]
         v2 += H[s] * D2[s]
+        hs += H[s]
     vn = v0 * n0 + v1 * n1 + v2 * n2
     t0 = (v0 - vn * n0) / cn
     t1 = (v1 - vn * n1) / cn
     t2 = (v2 - vn * n2) / cn
     j10, j11, j12 = _cross(a20, a21, a22, t0, t1, t2)
     j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
-    # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum
+    # pass 4: dE_i/dx_j per stencil entry (elementwise: it vectorises). The centre takes
+    # minus their sum; the weights of a_1, a_2 sum to minus the centre's weight.
     C0 = contrib[0, p0:p1]
     C1 = contrib[1, p0:p1]
     C2 = contrib[2, p0:p1]
-    f0 = 0.0
-    f1 = 0.0
-    f2 = 0.0
     for s in range(ns):
-        g0 = w0[s] * j10 + w1[s] * j20 + H[s] * n0
-        g1 = w0[s] * j11 + w1[s] * j21 + H[s] * n1
-        g2 = w0[s] * j12 + w1[s] * j22 + H[s] * n2
-        C0[s] = g0
-        C1[s] = g1
-        C2[s] = g2
-        f0 += g0
-        f1 += g1
-        f2 += g2
-    contrib[0, p0 - 1] = -f0
-    contrib[1, p0 - 1] = -f1
-    contrib[2, p0 - 1] = -f2
+        C0[s] = w0[s] * j10 + w1[s] * j20 + H[s] * n0
+        C1[s] = w0[s] * j11 + w1[s] * j21 + H[s] * n1
+        C2[s] = w0[s] * j12 + w1[s] * j22 + H[s] * n2
+    c0w = st_w[0, p0 - 1]
+    c1w = st_w[1, p0 - 1]
+    contrib[0, p0 - 1] = c0w * j10 + c1w * j20 - hs * n0
+    contrib[1, p0 - 1] = c0w * j11 + c1w * j21 - hs * n1
+    contrib[2, p0 - 1] = c0w * j12 + c1w * j22 - hs * n2
 
 
 @kernel(parallel=True)
