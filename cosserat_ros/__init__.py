@@ -4,4 +4,6 @@ The simulator core (``mesh``, ``geometry``, ``material``, ``forces``, ``integrat
 ``simulator``, ``scenarios``) imports no ROS module; ``node`` and the tools built on it do.
 """
 
+from . import compiled as _compiled  # noqa: F401  (drops stale kernel caches first)
+
 __version__ = '0.1.0'

@@ -9,14 +9,64 @@
 * ``fastmath={'contract'}``: LLVM may fuse ``a * b + c`` into one FMA. This changes rounding
   only; none of the flags that assume no NaN or infinity (``nnan``, ``ninf``) is set, so the
   NaN checks stay valid, and summation order is kept (no ``reassoc``).
+
+Stale caches
+------------
+numba keys a cached function by the time stamp of its own source file only. A kernel that
+calls kernels of another file (``run_steps`` in integrator.py calls forces.py) keeps its
+cached machine code when only the callee's file changes, and an install that preserves
+time stamps (``setup.py install`` copies them) can leave such a stale step behind. On import,
+:func:`invalidate_stale_cache` therefore hashes every file with kernels and, when the hash
+differs from the one stored beside the cache, removes the package's cached kernels.
 """
 from __future__ import annotations
 
+import hashlib
+import os
+
 import numba as nb
 
-__all__ = ['kernel']
+__all__ = ['kernel', 'invalidate_stale_cache']
+
+#: every module of the package that defines or inlines numba kernels
+KERNEL_MODULES = ('compiled.py', 'forces.py', 'geometry.py', 'integrator.py', 'material.py',
+                  'surface_query.py')
 
 
 def kernel(**options):
     """``numba.njit`` with the options above; ``options`` adds ``parallel``/``inline``."""
     return nb.njit(cache=True, error_model='numpy', fastmath={'contract'}, **options)
+
+
+def invalidate_stale_cache(package_dir: str = os.path.dirname(os.path.abspath(__file__))
+                           ) -> bool:
+    """Remove the cached kernels of ``package_dir/__pycache__`` when the kernel sources
+    changed since they were written; returns True if it removed them. A read-only install
+    is left alone (numba then caches per user)."""
+    digest = hashlib.sha256()
+    for name in KERNEL_MODULES:
+        path = os.path.join(package_dir, name)
+        if os.path.exists(path):
+            with open(path, 'rb') as fh:
+                digest.update(name.encode() + b'\0' + fh.read())
+    cache = os.path.join(package_dir, '__pycache__')
+    stamp = os.path.join(cache, 'kernels.sha256')
+    try:
+        with open(stamp) as fh:
+            if fh.read().strip() == digest.hexdigest():
+                return False
+    except OSError:
+        pass
+    try:
+        os.makedirs(cache, exist_ok=True)
+        for name in os.listdir(cache):
+            if name.endswith(('.nbi', '.nbc')):
+                os.remove(os.path.join(cache, name))
+        with open(stamp, 'w') as fh:
+            fh.write(digest.hexdigest())
+    except OSError:
+        return False
+    return True
+
+
+invalidate_stale_cache()

@@ -64,9 +64,34 @@ __all__ = ['DIVERGENCE_METHODS']
 DIVERGENCE_METHODS = ('variational', 'covariant')
 
 
+@kernel(inline='always')
+def _corner_gradients(F, dinv, t, s11, s12, s22, fgrad, add):
+    """dE/dx at the three corners of face t for the stress-times-area S (face chart):
+    ``[g_1 g_2] = F S Dinv^T``, corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
+    d00 = dinv[t, 0, 0]
+    d01 = dinv[t, 0, 1]
+    d10 = dinv[t, 1, 0]
+    d11 = dinv[t, 1, 1]
+    for k in range(3):
+        p0 = F[t, k, 0] * s11 + F[t, k, 1] * s12
+        p1 = F[t, k, 0] * s12 + F[t, k, 1] * s22
+        g1 = p0 * d00 + p1 * d01
+        g2 = p0 * d10 + p1 * d11
+        if add:
+            fgrad[t, 1, k] += g1
+            fgrad[t, 2, k] += g2
+            fgrad[t, 0, k] -= g1 + g2
+        else:
+            fgrad[t, 1, k] = g1
+            fgrad[t, 2, k] = g2
+            fgrad[t, 0, k] = -g1 - g2
+
+
 @kernel(parallel=True)
-def face_strain(x, faces, dinv, F, eps):
-    """Deformation gradient F (m,3,2) and Green strain eps (m,3) = (11, 12, 22) per face."""
+def face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad):
+    """Per face: deformation gradient F (m,3,2), Green strain eps (m,3) = (11, 12, 22)
+    (Eq. 17) and the membrane's corner gradients fgrad (m,3,3) = d(area W_m)/dx_corner,
+    with ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
     m = faces.shape[0]
     for t in nb.prange(m):
         i0 = faces[t, 0]
@@ -84,9 +109,16 @@ def face_strain(x, faces, dinv, F, eps):
         f11 = F[t, 0, 0] ** 2 + F[t, 1, 0] ** 2 + F[t, 2, 0] ** 2
         f12 = F[t, 0, 0] * F[t, 0, 1] + F[t, 1, 0] * F[t, 1, 1] + F[t, 2, 0] * F[t, 2, 1]
         f22 = F[t, 0, 1] ** 2 + F[t, 1, 1] ** 2 + F[t, 2, 1] ** 2
-        eps[t, 0] = 0.5 * (f11 - 1.0)
-        eps[t, 1] = 0.5 * f12
-        eps[t, 2] = 0.5 * (f22 - 1.0)
+        e11 = 0.5 * (f11 - 1.0)
+        e12 = 0.5 * f12
+        e22 = 0.5 * (f22 - 1.0)
+        eps[t, 0] = e11
+        eps[t, 1] = e12
+        eps[t, 2] = e22
+        c = face_area[t] * 2.0 * zeta
+        tr = e11 + e22
+        _corner_gradients(F, dinv, t, c * (tr + 2.0 * e11), c * (2.0 * e12),
+                          c * (tr + 2.0 * e22), fgrad, False)
 
 
 @kernel(inline='always')
@@ -205,9 +237,10 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
         a22 += w1[s] * d2
     c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
     cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    n0 = c0 / cn
-    n1 = c1 / cn
-    n2 = c2 / cn
+    icn = 1.0 / cn
+    n0 = c0 * icn
+    n1 = c1 * icn
+    n2 = c2 * icn
     # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab
     # (Eq. 11). q_1 = a_1 . n and q_2 = a_2 . n vanish.
     q2 = 0.0
@@ -234,8 +267,9 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     e12 = 0.0
     e22 = 0.0
     # epsbar_i = sum_t area_t / (3 A_i) K_it^T eps_t K_it, with the weight folded into
-    # vf_K (the corner matrices stored in vertex-face order)
-    for q in range(vf_ptr[i], vf_ptr[i + 1]):
+    # vf_K (the corner matrices stored in vertex-face order); only the coupling uses it,
+    # so it is skipped when phi = 0
+    for q in range(vf_ptr[i], vf_ptr[i + 1] if phi != 0.0 else vf_ptr[i]):
         t = vf_face[q]
         v11, v12, v22 = _to_vertex_chart(vf_K, q, eps[t, 0], eps[t, 1], eps[t, 2])
         e11 += v11
@@ -269,7 +303,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     uu = st_uv[0, p0:p1]
     vv = st_uv[1, p0:p1]
     sig = st_sigma[p0:p1]
-    om = stab[i] / ns
+    om = stab[i]            # c_i omega, omega = 1 / (stencil size)
     for s in range(ns):
         dd = DN[s] - _phi_dot(uu[s], vv[s], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8) - sig[s]
         DD[s] = dd
@@ -290,9 +324,9 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
         v2 += H[s] * D2[s]
         hs += H[s]
     vn = v0 * n0 + v1 * n1 + v2 * n2
-    t0 = (v0 - vn * n0) / cn
-    t1 = (v1 - vn * n1) / cn
-    t2 = (v2 - vn * n2) / cn
+    t0 = (v0 - vn * n0) * icn
+    t1 = (v1 - vn * n1) * icn
+    t2 = (v2 - vn * n2) * icn
     j10, j11, j12 = _cross(a20, a21, a22, t0, t1, t2)
     j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
     # pass 4: dE_i/dx_j per stencil entry (elementwise: it vectorises). The centre takes
@@ -366,37 +400,24 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_uv, out):
 
 
 @kernel(parallel=True)
-def face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad):
-    """Energy gradient at the three corners of each face, fgrad (m,3,3) = dE_t/dx_corner."""
+def face_coupling(faces, F, dinv, face_area, K, cstress, fgrad):
+    """Adds the coupling's corner gradients: the stress-times-area
+    ``S_t = sum_{i in t} area_t / 3 K_it Theta kap_i K_it^T`` of the vertex strain average
+    (module docstring). Only run when phi != 0."""
     m = faces.shape[0]
     for t in nb.prange(m):
-        e11 = eps[t, 0]
-        e12 = eps[t, 1]
-        e22 = eps[t, 2]
-        a = face_area[t]
-        tr = e11 + e22
-        s11 = a * 2.0 * zeta * (tr + 2.0 * e11)
-        s12 = a * 2.0 * zeta * (2.0 * e12)
-        s22 = a * 2.0 * zeta * (tr + 2.0 * e22)
+        a = face_area[t] / 3.0
+        s11 = 0.0
+        s12 = 0.0
+        s22 = 0.0
         for c in range(3):
             i = faces[t, c]
             q11, q12, q22 = _to_face_chart(K, t, c, cstress[i, 0], cstress[i, 1],
                                            cstress[i, 2])
-            s11 += a / 3.0 * q11
-            s12 += a / 3.0 * q12
-            s22 += a / 3.0 * q22
-        d00 = dinv[t, 0, 0]
-        d01 = dinv[t, 0, 1]
-        d10 = dinv[t, 1, 0]
-        d11 = dinv[t, 1, 1]
-        for k in range(3):
-            p0 = F[t, k, 0] * s11 + F[t, k, 1] * s12
-            p1 = F[t, k, 0] * s12 + F[t, k, 1] * s22
-            g1 = p0 * d00 + p1 * d01
-            g2 = p0 * d10 + p1 * d11
-            fgrad[t, 1, k] = g1
-            fgrad[t, 2, k] = g2
-            fgrad[t, 0, k] = -g1 - g2
+            s11 += a * q11
+            s12 += a * q12
+            s22 += a * q22
+        _corner_gradients(F, dinv, t, s11, s12, s22, fgrad, True)
 
 
 @kernel(inline='always')
@@ -438,11 +459,12 @@ def variational_stages(x, ops, mat, work, energy):
      st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner, vf_K) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
-    face_strain(x, faces, dinv, F, eps)
+    face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad)
     vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
                 eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
                 epsbar, estab, energy)
-    face_forces(faces, F, eps, dinv, face_area, K, cstress, zeta, fgrad)
+    if phi != 0.0:
+        face_coupling(faces, F, dinv, face_area, K, cstress, fgrad)
 
 
 @kernel()

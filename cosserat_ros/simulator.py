@@ -184,10 +184,11 @@ class ClothSimulator:
 
     def _set_material_arrays(self, material: Material):
         self._mat = np.array([material.zeta, material.xi, material.phi])
-        # jet hourglass control c_i = s xi A_i / h_i^4 (see forces.py), in place: the
+        # jet hourglass control c_i omega = s xi A_i / h_i^4 / S_i (S_i stencil entries
+        # besides the centre; see forces.py), in place: the
         # compiled operators hold this array
         self._stab[:] = (JET_STABILIZATION * material.xi * self.mesh.dual_areas
-                         / self._jet.radius ** 4)
+                         / self._jet.radius ** 4 / (np.diff(self._jet.st_ptr) - 1))
         self._mass = material.density * self.mesh.dual_areas
         self._damp = material.damping * self.mesh.dual_areas
         self._vmax = DIVERGENCE_SPEED_FACTOR * material.wave_speed + 100.0
