@@ -1,0 +1,38 @@
+"""The benchmark's own pieces: our row, the peer scene (MuJoCo, when installed)."""
+import math
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from cosserat_ros import bench, peer_mujoco as peer
+
+
+def test_our_row_is_measured():
+    r = bench.bench(8, batch_s=0.02, repeats=3)
+    assert r['vertices'] == 81 and r['ms'] > 0 and r['steps_s'] == pytest.approx(1e3 / r['ms'])
+    assert r['dt'] == pytest.approx(bench.DT_FRACTION * r['crit_dt'])
+    assert 1000 < r['bytes_per_vertex'] < 20000
+
+
+def test_peer_scene_has_the_issue_material():
+    root = ET.fromstring(peer.scene_xml(10, 'Euler', 2e-4))
+    fc = root.find('./worldbody/flexcomp')
+    el = fc.find('elasticity')
+    young, h = float(el.get('young')), float(el.get('thickness'))
+    nu = float(el.get('poisson'))
+    assert young * h == pytest.approx(peer.YOUNGS_2D)
+    assert young * h ** 3 / (12 * (1 - nu ** 2)) == pytest.approx(peer.BENDING)
+    assert fc.get('count') == '11 11 1' and fc.get('dim') == '2'
+    # every vertex carries density * spacing^2, like our interior vertices
+    assert float(fc.get('mass')) / 11 ** 2 == pytest.approx(peer.DENSITY / 10 ** 2)
+    assert len(fc.findall('pin')) == 4
+    assert root.find('option').get('integrator') == 'Euler'
+
+
+def test_both_engines_sag_alike():
+    pytest.importorskip('mujoco')
+    ours = bench.settled_sag(10)
+    theirs = peer.settled_sag(10, 'Euler', 2e-4, bench.SETTLE_TIME, bench.SETTLE_RATE)
+    assert math.isfinite(theirs)
+    assert abs(ours - theirs) < 0.01 * theirs
+    assert 0.03 < ours < 0.04
