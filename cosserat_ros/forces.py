@@ -171,9 +171,8 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
 
 
 @kernel(inline='always')
-def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
-            eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar,
-            estab, energy):
+def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
+            dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar, estab, energy):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
 
     Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
@@ -187,9 +186,10 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     (the normal depends on the positions through a_1, a_2 only). The least-squares fit
     residual is orthogonal to the design columns (sum_k phi_k (rho_k . n - sigma_k) = 0
     for the uniform fit weights), so the residual term needs no jet adjoint of its own.
-    Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, the centre included
-    (``-sum`` of the others), coordinate-major (3, K). ``sc`` (5, S) is the chunk's
-    scratch."""
+    Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, coordinate-major (3, K);
+    the centre's (minus the sum of the others) comes from the centre weights and
+    ``sum_k h_k``. ``sc`` (6, S) is the chunk's scratch; ``energy`` also writes the
+    residual energy estab[i]."""
     p0 = st_ptr[i] + 1
     p1 = st_ptr[i + 1]
     ns = p1 - p0
@@ -346,9 +346,9 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
 
 
 @kernel(parallel=True)
-def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
-                eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
-                epsbar, estab, energy):
+def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
+                dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
+                energy):
     """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
     contrib (3,K). Parallel over ``scratch.shape[0]`` chunks of vertices, each with its
@@ -361,9 +361,9 @@ def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
     for ch in nb.prange(nch):
         sc = scratch[ch]
         for i in range(ch * chunk, min(n, (ch + 1) * chunk)):
-            _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
-                    vf_corner, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib,
-                    cstress, kap, epsbar, estab, energy)
+            _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps,
+                    vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar,
+                    estab, energy)
 
 
 @kernel(inline='always')
@@ -460,9 +460,9 @@ def variational_stages(x, ops, mat, work, energy):
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad)
-    vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, vf_corner,
-                eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap,
-                epsbar, estab, energy)
+    vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
+                dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
+                energy)
     if phi != 0.0:
         face_coupling(faces, F, dinv, face_area, K, cstress, fgrad)
 
