@@ -165,7 +165,11 @@ class ClothNode(Node):
         t0 = time.perf_counter()
         self.sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
                                   divergence=p['divergence'], check_dt=False)
-        self.sim.step(1)        # compile (or load from cache) every kernel of the step
+        # compile (or load from cache) every kernel of the step and of the energy report
+        # before any topic exists: a recorder that starts when the topics appear must not
+        # wait through a first tick that compiles
+        self.sim.step(1)
+        self.sim.energy_and_densities()
         self.sim.reset()
         self._check_dt(p['dt'], self.sim.critical_dt())
         self.sim.dt = p['dt']

@@ -1,7 +1,7 @@
 """``render``: pictures of a recorded (or live) cloth, offscreen, without RViz.
 
     render BAG -o OUT [--times T ...] [--frames N] [--node cloth_node]
-    render --live SECONDS -o OUT            # subscribe to the running node instead
+    render --live SECONDS -o OUT [--wait S] # subscribe to the running node instead
 
 Writes into OUT: ``cloth_<t>s.png`` (shaded, coloured like the marker, one per chosen
 simulation time; default first, middle and last), ``cloth.gif`` (and ``cloth.mp4`` when
@@ -161,8 +161,10 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     return written
 
 
-def live(seconds: float, node_name: str):
-    """Collect raw mesh and energy messages from the running node for ``seconds``."""
+def live(seconds: float, node_name: str, wait: float = 60.0):
+    """Collect raw mesh and energy messages from the running node for ``seconds``, counted
+    from the first mesh (discovery and a node still compiling its kernels can take a
+    while: up to ``wait`` seconds). Returns empty lists if nothing came."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from visualization_msgs.msg import MarkerArray
@@ -172,9 +174,12 @@ def live(seconds: float, node_name: str):
     node.create_subscription(MarkerArray, f'/{node_name}/mesh', meshes.append, 10, raw=True)
     node.create_subscription(DiagnosticArray, f'/{node_name}/energy', energies.append, 10,
                              raw=True)
-    end = time.monotonic() + seconds
+    end = time.monotonic() + wait
     try:
-        while time.monotonic() < end:
+        while not meshes and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        end = time.monotonic() + seconds
+        while meshes and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
     finally:
         node.destroy_node()
@@ -190,10 +195,17 @@ def main(argv=None) -> int:
     ap.add_argument('--frames', type=int, default=60, help='frames in the animation')
     ap.add_argument('--node', default='cloth_node', help='node whose topics to draw')
     ap.add_argument('--live', type=float, metavar='SECONDS',
-                    help='subscribe to the running node for SECONDS instead of a bag')
+                    help='subscribe to the running node for SECONDS (from its first mesh) '
+                         'instead of reading a bag')
+    ap.add_argument('--wait', type=float, default=60.0,
+                    help='with --live: how long to wait for the first mesh [s]')
     a = ap.parse_args(argv)
     if a.live:
-        meshes, energies = live(a.live, a.node)
+        meshes, energies = live(a.live, a.node, a.wait)
+        if not meshes:
+            print(f'render: error: no mesh from /{a.node}/mesh within {a.wait:g} s; is the '
+                  'node running (same ROS_DOMAIN_ID)?', file=sys.stderr)
+            return 1
     elif a.bag:
         if not os.path.isdir(a.bag):
             print(f'render: error: {a.bag} is not a bag directory', file=sys.stderr)

@@ -149,3 +149,8 @@ def test_render_live_topics(node, bag, tmp_path):
     pngs = sorted(out.glob('cloth_*s.png'))
     assert pngs and (out / 'cloth.gif').exists() and (out / 'energy.png').exists()
     assert np.asarray(Image.open(pngs[-1]).convert('RGB'), dtype=float).std() > 10
+    # a node that is not there: a clear error, not an empty picture
+    res = subprocess.run([exe('render'), '--live', '1', '--wait', '2', '--node', 'nobody',
+                          '-o', str(tmp_path / 'none')], capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 1 and 'no mesh from /nobody/mesh' in res.stderr
