@@ -75,9 +75,10 @@ class JetOperator:
     ``coeff[i, c] = sum_{k in st_ptr[i]:st_ptr[i+1]} st_w[c, k] * x[st_idx[k]]``, with
     ``c`` = a_1, a_2, r_11, r_12, r_22, r_111, r_112, r_122, r_222. The weights are stored
     coefficient-major, so one coefficient's weights over a stencil are contiguous (the
-    vertex kernel reads them as vectors). The transposed CSR (``tr_ptr``, ``tr_src``,
-    ``tr_slot``) lists, for every vertex ``j``, the stencil entries ``k`` of the vertices
-    ``tr_src`` whose fit uses ``x[j]``: the adjoint (a discrete divergence) is a gather.
+    vertex kernel reads them as vectors). The fit weights are uniform over a stencil. The
+    transposed CSR (``tr_ptr``, ``tr_slot``) lists, for every vertex ``j``, the stencil
+    entries ``k`` (of any vertex) whose fit uses ``x[j]``: the adjoint (a discrete
+    divergence) is a gather.
     """
 
     frames: np.ndarray    # (n, 3, 3) rest chart axes E1, E2, N (rows)
@@ -85,10 +86,8 @@ class JetOperator:
     st_idx: np.ndarray    # (K,) int64, stencil vertices, centre included
     st_w: np.ndarray      # (NJET, K) float64 weights, coefficient-major
     st_x: np.ndarray      # (K, 2) float64 chart coordinates of the stencil vertex
-    st_omega: np.ndarray  # (K,) float64 least-squares weights, summing to 1 per vertex
     radius: np.ndarray    # (n,) float64 rms stencil radius h_i [m]
     tr_ptr: np.ndarray    # (n+1,) int64
-    tr_src: np.ndarray    # (K,) int64 vertex whose stencil holds the entry
     tr_slot: np.ndarray   # (K,) int64 index k of the entry in st_*
     rings: np.ndarray     # (n,) int64 ring depth used per vertex
 
@@ -117,8 +116,8 @@ def design_matrix(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
     """Batched LS weights. d (b, S, 3) offsets R_j - R_i; mask (b, S) valid entries.
 
-    Returns weights (b, S, 5) in physical units, chart coords (b, S, 2), rcond (b,),
-    the least-squares weights omega (b, S) and the stencil radius s (b,) [m].
+    Returns weights (b, S, NJET) in physical units, chart coords (b, S, 2), rcond (b,)
+    and the stencil radius s (b,) [m].
     """
     u = np.einsum('bsk,bk->bs', d, frame[:, 0])
     v = np.einsum('bsk,bk->bs', d, frame[:, 1])
@@ -141,7 +140,7 @@ def _fit_weights(d: np.ndarray, frame: np.ndarray, mask: np.ndarray):
     coef = coef * sw[:, None, :]
     scale = np.stack([1 / s, 1 / s] + [1 / s ** 2] * 3 + [1 / s ** 3] * (nc - 5), axis=1)
     wts = np.transpose(coef * scale[:, :, None], (0, 2, 1))
-    return wts, np.stack([u, v], axis=-1), rcond, w, s
+    return wts, np.stack([u, v], axis=-1), rcond, s
 
 
 def build_jet_operator(mesh: ClothMesh) -> JetOperator:
@@ -158,20 +157,20 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     pad[pos] = idx
     mask = pad >= 0
     d = X[np.where(mask, pad, 0)] - X[:, None, :]
-    wts, chart, rcond, omega, radius = _fit_weights(d, frames, mask)
+    wts, chart, rcond, radius = _fit_weights(d, frames, mask)
     rings = np.full(n, 2, dtype=np.int64)
     # one-sided stencils: boundary vertices fit over their 3-ring (a cubic jet needs the
     # points spread over more than the thin one-sided 2-ring); ill-conditioned fits grow
     bad = np.flatnonzero((rcond <= JET_RCOND_MIN) | mesh.boundary_vertices)
     for i in range(n):
         sel = mask[i]
-        stencils[i] = (pad[i, sel], wts[i, sel], chart[i, sel], omega[i, sel])
+        stencils[i] = (pad[i, sel], wts[i, sel], chart[i, sel])
     for i in bad:
         for k in range(3, JET_MAX_RINGS + 1):
             nb_ = k_ring(mesh.ring1_ptr, mesh.ring1, int(i), k)
-            w_i, c_i, rc, om_i, rad_i = _fit_weights((X[nb_] - X[i])[None], frames[i:i + 1],
-                                                     np.ones((1, len(nb_)), dtype=bool))
-            stencils[i] = (nb_, w_i[0], c_i[0], om_i[0])
+            w_i, c_i, rc, rad_i = _fit_weights((X[nb_] - X[i])[None], frames[i:i + 1],
+                                               np.ones((1, len(nb_)), dtype=bool))
+            stencils[i] = (nb_, w_i[0], c_i[0])
             radius[i] = rad_i[0]
             rings[i] = k
             if rc[0] > JET_RCOND_MIN and (k >= 3 or not mesh.boundary_vertices[i]):
@@ -186,20 +185,18 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     st_idx = np.empty(st_ptr[-1], dtype=np.int64)
     st_w = np.empty((NJET, st_ptr[-1]))
     st_x = np.zeros((st_ptr[-1], 2))
-    st_omega = np.zeros(st_ptr[-1])
-    for i, (nbr, w, c, om) in enumerate(stencils):
+    for i, (nbr, w, c) in enumerate(stencils):
         a, b = st_ptr[i], st_ptr[i + 1]
         st_idx[a] = i
         st_w[:, a] = -w.sum(axis=0)
         st_idx[a + 1:b] = nbr
         st_w[:, a + 1:b] = w.T
         st_x[a + 1:b] = c
-        st_omega[a + 1:b] = om / om.sum()
     src = np.repeat(np.arange(n, dtype=np.int64), lens)
-    tr_ptr, tr_src, order = csr_from_pairs(st_idx, src, n)
+    tr_ptr, _, order = csr_from_pairs(st_idx, src, n)
     return JetOperator(frames=frames, st_ptr=st_ptr, st_idx=st_idx, st_w=st_w, st_x=st_x,
-                       st_omega=st_omega, radius=radius, tr_ptr=tr_ptr, tr_src=tr_src,
-                       tr_slot=order.astype(np.int64), rings=rings)
+                       radius=radius, tr_ptr=tr_ptr, tr_slot=order.astype(np.int64),
+                       rings=rings)
 
 
 # --------------------------------------------------------------------------- kernels
