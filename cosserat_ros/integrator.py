@@ -52,39 +52,28 @@ def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, g0, g1, g2, vmax2):
 
 
 @kernel(parallel=True)
-def integrate(x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc):
-    """One symplectic Euler update in place; returns the number of vertices that went bad
-    (non-finite or faster than sqrt(vmax2))."""
-    work = 0.0
-    diss = 0.0
-    bad = 0
-    for i in nb.prange(x.shape[0]):
-        if not pinned[i]:
-            w, d, b = _update(i, x, v, force[i, 0], force[i, 1], force[i, 2], f_applied, mass,
-                              damp, dt, gravity[0], gravity[1], gravity[2], vmax2)
-            work += w
-            diss += d
-            bad += b
-    acc[0] += work
-    acc[1] += diss
-    return bad
-
-
-@kernel(parallel=True)
-def gather_integrate(ops, work_arrays, x, v, force, f_applied, mass, damp, pinned, gravity, dt,
-                     vmax2, acc):
-    """The last stage of the variational force (the gather) fused with the update: one pass
-    over the vertices. Returns the number of vertices that went bad."""
+def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinned, gravity,
+              dt, vmax2, acc):
+    """One symplectic Euler update in place, one pass over the vertices; returns the number
+    of vertices that went bad (non-finite or faster than sqrt(vmax2)). With ``gather`` the
+    last stage of the variational force (the gather of corner and stencil gradients) runs
+    in the same pass and fills ``force``; otherwise ``force`` is read as given."""
     tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
     fgrad, contrib = work_arrays[6], work_arrays[7]
     work = 0.0
     diss = 0.0
     bad = 0
     for i in nb.prange(x.shape[0]):
-        f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib)
-        force[i, 0] = f0
-        force[i, 1] = f1
-        force[i, 2] = f2
+        if gather:
+            f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
+                                 contrib)
+            force[i, 0] = f0
+            force[i, 1] = f1
+            force[i, 2] = f2
+        else:
+            f0 = force[i, 0]
+            f1 = force[i, 1]
+            f2 = force[i, 2]
         if not pinned[i]:
             w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, gravity[0],
                               gravity[1], gravity[2], vmax2)
@@ -110,18 +99,17 @@ def run_steps(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
               ops, cov, mat, work, cwork, force):
     """Advance ``nsteps`` steps in compiled code. Returns the number of completed steps;
     fewer than ``nsteps`` means step ``returned value`` diverged (state then invalid).
-    A variational step is four parallel passes: face strains, vertices (jets, bending,
-    coupling, stencil gradients), face gradients, and gather + update."""
+    A variational step is three parallel passes (four with coupling, phi != 0): faces
+    (strains, membrane gradients), vertices (jets, bending, stencil gradients), [faces:
+    coupling gradients], and gather + update."""
+    variational = method == METHOD_VARIATIONAL
     for s in range(nsteps):
-        if method == METHOD_VARIATIONAL:
+        if variational:
             variational_stages(x, ops, mat, work, False)
-            bad = gather_integrate(ops, work, x, v, force, f_applied, mass, damp, pinned,
-                                   gravity, dt, vmax2, acc)
         else:
             covariant_forces(x, ops, cov, mat, cwork, force)
-            bad = integrate(x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2,
-                            acc)
-        if bad > 0:
+        if integrate(ops, work, variational, x, v, force, f_applied, mass, damp, pinned,
+                     gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps
 
