@@ -184,7 +184,7 @@ def part_peer(ours, sizes, sag_sizes):
 
 # --------------------------------------------------------------------------- the node
 
-def _node_params(path: str, n: int, material: Material, dt: float, pinned: str):
+def _node_params(path: str, n: int, material: Material, dt: float, pinned):
     with open(path, 'w') as fh:
         fh.write(f"""cloth_node:
   ros__parameters:
@@ -193,7 +193,7 @@ def _node_params(path: str, n: int, material: Material, dt: float, pinned: str):
                 density: {material.density!r}, damping: {material.damping!r}}}
     dt: {float(dt)!r}
     publish_rate: 30.0
-    pinned: {{sets: [{pinned}]}}
+    pinned: {{sets: [{', '.join(pinned)}]}}
     status_period: 0.0
 """)
 
@@ -259,22 +259,28 @@ def part_node(watch_s: float):
     os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     print('\n## node: the installed cloth_node, 40 x 40, publishing at 30 Hz\n')
-    demo = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)  # cloth.yaml
+    import yaml
+    from ament_index_python.packages import get_package_share_directory
+    from .node import pin_set
+    # the demo as shipped (the installed config/cloth.yaml), and the issue's scene
+    with open(os.path.join(get_package_share_directory('cosserat_ros'), 'config',
+                           'cloth.yaml')) as fh:
+        shipped = yaml.safe_load(fh)['cloth_node']['ros__parameters']
+    demo = Material(**shipped['material'])
+    demo_pins = shipped['pinned']['sets']
     cases = []
-    for name, mat, pinned in (('config/cloth.yaml material, two corners pinned', demo,
-                               'top_corners'),
-                              ('issue 6 scene, all edges pinned', SCENE, 'boundary')):
+    for name, mat, pinned in (('config/cloth.yaml material and pins', demo, demo_pins),
+                              ('issue 6 scene, all edges pinned', SCENE, ['boundary'])):
         mesh = grid_mesh(40, 40)
         probe = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
-        if pinned == 'boundary':
-            probe.pin(mesh.boundary_vertices)
+        probe.pin(np.concatenate([pin_set(mesh, p) for p in pinned]))
         crit = probe.critical_dt()
         for dt in sorted({2e-4, round(DT_FRACTION * crit, 7)}):
             if dt <= crit:
                 cases.append((name, mat, pinned, dt, crit))
     with tempfile.TemporaryDirectory() as tmp:
         params = os.path.join(tmp, 'p.yaml')
-        _node_params(params, 40, demo, 2e-4, 'top_corners')
+        _node_params(params, 40, demo, 2e-4, demo_pins)
         cold_env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, 'numba-cache'))
         cold = run_node(params, 0.0, cold_env)[0]
         warm = run_node(params, 0.0, cold_env)[0]
