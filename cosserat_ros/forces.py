@@ -55,7 +55,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .compiled import kernel
+from .compiled import REDUCTION, kernel
 from .geometry import _cross
 from .material import bilinear, contract
 
@@ -170,9 +170,55 @@ def _jet(x, st_ptr, st_idx, st_w, i, out):
             out[c, 2] += w * x2
 
 
+# Two stencil sums of the vertex pass. They are functions of their own, compiled with
+# ``reassoc`` (compiled.REDUCTION) and not inlined by numba, so that their sums over the
+# stencil run as SIMD vectors while the rest of the step keeps the strict order.
+
+@kernel(fastmath=REDUCTION)
+def _normal_jet(ns, p0, st_w, scratch, ch, n0, n1, n2):
+    """DN_k = d_k . n and q_c = sum_k W_kc DN_k for c = r_11 ... r_222 (Eq. 11)."""
+    p0 = max(p0, 0)
+    q2 = 0.0
+    q3 = 0.0
+    q4 = 0.0
+    q5 = 0.0
+    q6 = 0.0
+    q7 = 0.0
+    q8 = 0.0
+    for s in range(ns):
+        dn = scratch[ch, 0, s] * n0 + scratch[ch, 1, s] * n1 + scratch[ch, 2, s] * n2
+        scratch[ch, 3, s] = dn
+        k = p0 + s
+        q2 += st_w[2, k] * dn
+        q3 += st_w[3, k] * dn
+        q4 += st_w[4, k] * dn
+        q5 += st_w[5, k] * dn
+        q6 += st_w[6, k] * dn
+        q7 += st_w[7, k] * dn
+        q8 += st_w[8, k] * dn
+    return q2, q3, q4, q5, q6, q7, q8
+
+
+@kernel(fastmath=REDUCTION)
+def _weighted_offsets(ns, scratch, ch):
+    """V = sum_k h_k d_k and sum_k h_k."""
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    hs = 0.0
+    for s in range(ns):
+        h = scratch[ch, 4, s]
+        v0 += h * scratch[ch, 0, s]
+        v1 += h * scratch[ch, 1, s]
+        v2 += h * scratch[ch, 2, s]
+        hs += h
+    return v0, v1, v2, hs
+
+
 @kernel(inline='always')
 def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
-            dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar, estab, energy):
+            dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab,
+            energy):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
 
     Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
@@ -188,33 +234,25 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     for the uniform fit weights), so the residual term needs no jet adjoint of its own.
     Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, coordinate-major (3, K);
     the centre's (minus the sum of the others) comes from the centre weights and
-    ``sum_k h_k``. ``sc`` (6, S) is the chunk's scratch; ``energy`` also writes the
-    residual energy estab[i]."""
-    p0 = st_ptr[i] + 1
+    ``sum_k h_k``. ``sc[ch]`` (5, S) is the chunk's scratch; ``energy`` also writes the
+    residual energy estab[i].
+
+    Written for the vectoriser: no array views inside the parallel loop (numba then marks
+    the kernel's arrays ``noalias`` and LLVM vectorises the contiguous loops without
+    run-time overlap checks), the stencil offset clamped to ``p0 >= 0`` and the gathered
+    index unsigned (so no negative-index wrap-around turns contiguous loads into gathers),
+    and the three stencil sums in :data:`compiled.REDUCTION` helpers. The gather of x
+    stays scalar (vector gathers are slower here)."""
+    p0 = max(st_ptr[i] + 1, 0)
     p1 = st_ptr[i + 1]
     ns = p1 - p0
     # one coefficient's weights over the stencil are contiguous: the loops below run over
-    # the stencil entries as vectors
-    idx = st_idx[p0:p1]
-    w0 = st_w[0, p0:p1]
-    w1 = st_w[1, p0:p1]
-    w2 = st_w[2, p0:p1]
-    w3 = st_w[3, p0:p1]
-    w4 = st_w[4, p0:p1]
-    w5 = st_w[5, p0:p1]
-    w6 = st_w[6, p0:p1]
-    w7 = st_w[7, p0:p1]
-    w8 = st_w[8, p0:p1]
-    D0 = sc[0, :ns]
-    D1 = sc[1, :ns]
-    D2 = sc[2, :ns]
-    DN = sc[3, :ns]
-    H = sc[4, :ns]
-    DD = sc[5, :ns]
+    # the stencil entries k = p0 + s as vectors
     xi0 = x[i, 0]
     xi1 = x[i, 1]
     xi2 = x[i, 2]
-    # pass 1: offsets d_k and the tangent vectors a_1, a_2 (Eq. 8)
+    # pass 1: offsets d_k (an indexed gather, kept scalar) and the tangent vectors
+    # a_1, a_2 (Eq. 8)
     a10 = 0.0
     a11 = 0.0
     a12 = 0.0
@@ -222,19 +260,20 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     a21 = 0.0
     a22 = 0.0
     for s in range(ns):
-        j = idx[s]
+        k = p0 + s
+        j = nb.uint64(st_idx[k])
         d0 = x[j, 0] - xi0
         d1 = x[j, 1] - xi1
         d2 = x[j, 2] - xi2
-        D0[s] = d0
-        D1[s] = d1
-        D2[s] = d2
-        a10 += w0[s] * d0
-        a11 += w0[s] * d1
-        a12 += w0[s] * d2
-        a20 += w1[s] * d0
-        a21 += w1[s] * d1
-        a22 += w1[s] * d2
+        sc[ch, 0, s] = d0
+        sc[ch, 1, s] = d1
+        sc[ch, 2, s] = d2
+        a10 += st_w[0, k] * d0
+        a11 += st_w[0, k] * d1
+        a12 += st_w[0, k] * d2
+        a20 += st_w[1, k] * d0
+        a21 += st_w[1, k] * d1
+        a22 += st_w[1, k] * d2
     c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
     cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     icn = 1.0 / cn
@@ -243,23 +282,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     n2 = c2 * icn
     # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab
     # (Eq. 11). q_1 = a_1 . n and q_2 = a_2 . n vanish.
-    q2 = 0.0
-    q3 = 0.0
-    q4 = 0.0
-    q5 = 0.0
-    q6 = 0.0
-    q7 = 0.0
-    q8 = 0.0
-    for s in range(ns):
-        dn = D0[s] * n0 + D1[s] * n1 + D2[s] * n2
-        DN[s] = dn
-        q2 += w2[s] * dn
-        q3 += w3[s] * dn
-        q4 += w4[s] * dn
-        q5 += w5[s] * dn
-        q6 += w6[s] * dn
-        q7 += w7[s] * dn
-        q8 += w8[s] * dn
+    q2, q3, q4, q5, q6, q7, q8 = _normal_jet(ns, p0, st_w, sc, ch, n0, n1, n2)
     k11 = -(q2 - rest_b[i, 0])
     k12 = -(q3 - rest_b[i, 1])
     k22 = -(q4 - rest_b[i, 2])
@@ -300,29 +323,22 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     g22 = -A * m22
     # pass 3: residuals along the normal rho_k . n = dn_k - phi_k . q (the design row from
     # the chart coordinates) and h_k = dE_i/d(dn_k)
-    uu = st_uv[0, p0:p1]
-    vv = st_uv[1, p0:p1]
-    sig = st_sigma[p0:p1]
     om = stab[i]            # c_i omega, omega = 1 / (stencil size)
     for s in range(ns):
-        dd = DN[s] - _phi_dot(uu[s], vv[s], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8) - sig[s]
-        DD[s] = dd
-        H[s] = 2.0 * om * dd + w2[s] * g11 + w3[s] * g12 + w4[s] * g22
+        k = p0 + s
+        dd = (sc[ch, 3, s] - st_sigma[k]
+              - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+        sc[ch, 4, s] = 2.0 * om * dd + st_w[2, k] * g11 + st_w[3, k] * g12 + st_w[4, k] * g22
     if energy:      # the residual energy only when asked for (not in the step)
         e = 0.0
         for s in range(ns):
-            e += DD[s] * DD[s]
+            k = p0 + s
+            dd = (sc[ch, 3, s] - st_sigma[k]
+                  - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+            e += dd * dd
         estab[i] = om * e
+    v0, v1, v2, hs = _weighted_offsets(ns, sc, ch)
     # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    hs = 0.0
-    for s in range(ns):
-        v0 += H[s] * D0[s]
-        v1 += H[s] * D1[s]
-        v2 += H[s] * D2[s]
-        hs += H[s]
     vn = v0 * n0 + v1 * n1 + v2 * n2
     t0 = (v0 - vn * n0) * icn
     t1 = (v1 - vn * n1) * icn
@@ -331,13 +347,12 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
     # pass 4: dE_i/dx_j per stencil entry (elementwise: it vectorises). The centre takes
     # minus their sum; the weights of a_1, a_2 sum to minus the centre's weight.
-    C0 = contrib[0, p0:p1]
-    C1 = contrib[1, p0:p1]
-    C2 = contrib[2, p0:p1]
     for s in range(ns):
-        C0[s] = w0[s] * j10 + w1[s] * j20 + H[s] * n0
-        C1[s] = w0[s] * j11 + w1[s] * j21 + H[s] * n1
-        C2[s] = w0[s] * j12 + w1[s] * j22 + H[s] * n2
+        k = p0 + s
+        h = sc[ch, 4, s]
+        contrib[0, k] = st_w[0, k] * j10 + st_w[1, k] * j20 + h * n0
+        contrib[1, k] = st_w[0, k] * j11 + st_w[1, k] * j21 + h * n1
+        contrib[2, k] = st_w[0, k] * j12 + st_w[1, k] * j22 + h * n2
     c0w = st_w[0, p0 - 1]
     c1w = st_w[1, p0 - 1]
     contrib[0, p0 - 1] = c0w * j10 + c1w * j20 - hs * n0
@@ -359,11 +374,10 @@ def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
     # constant, which numba's cache would freeze into the compiled code)
     chunk = (n + nch - 1) // nch
     for ch in nb.prange(nch):
-        sc = scratch[ch]
         for i in range(ch * chunk, min(n, (ch + 1) * chunk)):
             _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps,
-                    vf_K, dual_area, ainv, rest_b, xi, phi, sc, contrib, cstress, kap, epsbar,
-                    estab, energy)
+                    vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch, contrib, cstress, kap,
+                    epsbar, estab, energy)
 
 
 @kernel(inline='always')

@@ -133,7 +133,7 @@ class ClothSimulator:
         # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
         self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
-                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 6, smax)))
+                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 5, smax)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
