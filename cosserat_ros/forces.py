@@ -216,6 +216,14 @@ def _weighted_offsets(ns, scratch, ch):
 
 
 @kernel(inline='always')
+def _residual(sc, ch, s, k, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8):
+    """rho_k . n - sigma_k = DN_k - phi_k . q - sigma_k for stencil entry k (scratch slot
+    s), q_1 = q_2 = 0."""
+    return (sc[ch, 3, s] - st_sigma[k]
+            - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+
+
+@kernel(inline='always')
 def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
             dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab,
             energy):
@@ -241,7 +249,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     the kernel's arrays ``noalias`` and LLVM vectorises the contiguous loops without
     run-time overlap checks), the stencil offset clamped to ``p0 >= 0`` and the gathered
     index unsigned (so no negative-index wrap-around turns contiguous loads into gathers),
-    and the three stencil sums in :data:`compiled.REDUCTION` helpers. The gather of x
+    and the two stencil sums in :data:`compiled.REDUCTION` helpers. The gather of x
     stays scalar (vector gathers are slower here)."""
     p0 = max(st_ptr[i] + 1, 0)
     p1 = st_ptr[i + 1]
@@ -326,15 +334,12 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     om = stab[i]            # c_i omega, omega = 1 / (stencil size)
     for s in range(ns):
         k = p0 + s
-        dd = (sc[ch, 3, s] - st_sigma[k]
-              - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+        dd = _residual(sc, ch, s, k, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
         sc[ch, 4, s] = 2.0 * om * dd + st_w[2, k] * g11 + st_w[3, k] * g12 + st_w[4, k] * g22
     if energy:      # the residual energy only when asked for (not in the step)
         e = 0.0
         for s in range(ns):
-            k = p0 + s
-            dd = (sc[ch, 3, s] - st_sigma[k]
-                  - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+            dd = _residual(sc, ch, s, p0 + s, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
             e += dd * dd
         estab[i] = om * e
     v0, v1, v2, hs = _weighted_offsets(ns, sc, ch)
