@@ -58,6 +58,7 @@ import numpy as np
 from .compiled import REDUCTION, kernel
 from .geometry import _cross
 from .material import bilinear, contract
+from .simd import LANES, lane, splat, vfma, vload, vset, vsqrt, vstore
 
 __all__ = ['DIVERGENCE_METHODS']
 
@@ -224,7 +225,24 @@ def _residual(sc, ch, s, k, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8):
 
 
 @kernel(inline='always')
-def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
+def _epsbar(i, vf_ptr, vf_face, eps, vf_K, phi):
+    """epsbar_i = sum_t area_t / (3 A_i) K_it^T eps_t K_it, with the weight folded into vf_K
+    (the corner matrices stored in vertex-face order); only the coupling uses it, so it is
+    zero (not computed) when phi = 0."""
+    e11 = 0.0
+    e12 = 0.0
+    e22 = 0.0
+    for q in range(vf_ptr[i], vf_ptr[i + 1] if phi != 0.0 else vf_ptr[i]):
+        t = vf_face[q]
+        v11, v12, v22 = _to_vertex_chart(vf_K, q, eps[t, 0], eps[t, 1], eps[t, 2])
+        e11 += v11
+        e12 += v12
+        e22 += v22
+    return e11, e12, e22
+
+
+@kernel(inline='always')
+def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
             dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab,
             energy):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
@@ -251,8 +269,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     index unsigned (so no negative-index wrap-around turns contiguous loads into gathers),
     and the two stencil sums in :data:`compiled.REDUCTION` helpers. The gather of x
     stays scalar (vector gathers are slower here)."""
-    p0 = max(st_ptr[i] + 1, 0)
-    p1 = st_ptr[i + 1]
+    p0 = max(pc + 1, 0)
     ns = p1 - p0
     # one coefficient's weights over the stencil are contiguous: the loops below run over
     # the stencil entries k = p0 + s as vectors
@@ -294,18 +311,7 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     k11 = -(q2 - rest_b[i, 0])
     k12 = -(q3 - rest_b[i, 1])
     k22 = -(q4 - rest_b[i, 2])
-    e11 = 0.0
-    e12 = 0.0
-    e22 = 0.0
-    # epsbar_i = sum_t area_t / (3 A_i) K_it^T eps_t K_it, with the weight folded into
-    # vf_K (the corner matrices stored in vertex-face order); only the coupling uses it,
-    # so it is skipped when phi = 0
-    for q in range(vf_ptr[i], vf_ptr[i + 1] if phi != 0.0 else vf_ptr[i]):
-        t = vf_face[q]
-        v11, v12, v22 = _to_vertex_chart(vf_K, q, eps[t, 0], eps[t, 1], eps[t, 2])
-        e11 += v11
-        e12 += v12
-        e22 += v22
+    e11, e12, e22 = _epsbar(i, vf_ptr, vf_face, eps, vf_K, phi)
     i11 = ainv[i, 0]
     i12 = ainv[i, 1]
     i22 = ainv[i, 2]
@@ -365,24 +371,253 @@ def _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     contrib[2, p0 - 1] = c0w * j12 + c1w * j22 - hs * n2
 
 
+@kernel(inline='always')
+def _gather_lanes(a, c, i0, i1, i2, i3):
+    """(a[i0, c], a[i1, c], a[i2, c], a[i3, c]) as one vector."""
+    return vset(a[i0, c], a[i1, c], a[i2, c], a[i3, c])
+
+
+@kernel(inline='always')
+def _store_lanes(a, c, i0, i1, i2, i3, v):
+    """a[i_l, c] = lane l of v."""
+    a[i0, c] = lane(v, 0)
+    a[i1, c] = lane(v, 1)
+    a[i2, c] = lane(v, 2)
+    a[i3, c] = lane(v, 3)
+
+
+@kernel(inline='always')
+def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
+                  eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap,
+                  epsbar, estab, energy):
+    """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
+    (:mod:`.simd`): the same formulas, each operation on the four vertices in one vector.
+
+    The group's stencils have the same size, and their entries are interleaved (lane
+    order, :func:`lane_layout`): entry s of lane l sits at ``g_ptr[g] + 4 s + l``, s = 0
+    the centre. So the weights, chart coordinates and rest residuals of one entry of the
+    four vertices load as one vector, and the gradients store as one; only the positions
+    x[j] are gathered lane by lane. The stencil loops have no remainder and no horizontal
+    sums, and the per-vertex work (normal, resultants, adjoint) is shared four ways."""
+    K = st_idx.shape[0]
+    W = sc.shape[2]
+    r0 = ch * 5 * W          # scratch rows d_0, d_1, d_2, dn, h of this chunk (flat offsets)
+    b = g_ptr[g]
+    ns = (g_ptr[g + 1] - b) // 4 - 1
+    p0 = b + 4
+    i0 = g_vert[g, 0]
+    i1 = g_vert[g, 1]
+    i2 = g_vert[g, 2]
+    i3 = g_vert[g, 3]
+    xi0 = _gather_lanes(x, 0, i0, i1, i2, i3)
+    xi1 = _gather_lanes(x, 1, i0, i1, i2, i3)
+    xi2 = _gather_lanes(x, 2, i0, i1, i2, i3)
+    # pass 1: offsets d_k and the tangent vectors a_1, a_2 (Eq. 8)
+    a10 = splat(0.0)
+    a11 = splat(0.0)
+    a12 = splat(0.0)
+    a20 = splat(0.0)
+    a21 = splat(0.0)
+    a22 = splat(0.0)
+    for s in range(ns):
+        k = p0 + 4 * s
+        j0 = nb.uint64(st_idx[k])
+        j1 = nb.uint64(st_idx[k + 1])
+        j2 = nb.uint64(st_idx[k + 2])
+        j3 = nb.uint64(st_idx[k + 3])
+        d0 = _gather_lanes(x, 0, j0, j1, j2, j3) - xi0
+        d1 = _gather_lanes(x, 1, j0, j1, j2, j3) - xi1
+        d2 = _gather_lanes(x, 2, j0, j1, j2, j3) - xi2
+        vstore(sc, r0 + 4 * s, d0)
+        vstore(sc, r0 + W + 4 * s, d1)
+        vstore(sc, r0 + 2 * W + 4 * s, d2)
+        w0 = vload(st_w, k)
+        w1 = vload(st_w, K + k)
+        a10 = vfma(w0, d0, a10)
+        a11 = vfma(w0, d1, a11)
+        a12 = vfma(w0, d2, a12)
+        a20 = vfma(w1, d0, a20)
+        a21 = vfma(w1, d1, a21)
+        a22 = vfma(w1, d2, a22)
+    c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
+    cn = vsqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    icn = 1.0 / cn
+    n0 = c0 * icn
+    n1 = c1 * icn
+    n2 = c2 * icn
+    # pass 2: dn_k and the jet along the normal q_c = coef_c . n (Eq. 11)
+    q2 = splat(0.0)
+    q3 = splat(0.0)
+    q4 = splat(0.0)
+    q5 = splat(0.0)
+    q6 = splat(0.0)
+    q7 = splat(0.0)
+    q8 = splat(0.0)
+    for s in range(ns):
+        k = p0 + 4 * s
+        dn = (vload(sc, r0 + 4 * s) * n0 + vload(sc, r0 + W + 4 * s) * n1
+              + vload(sc, r0 + 2 * W + 4 * s) * n2)
+        vstore(sc, r0 + 3 * W + 4 * s, dn)
+        q2 = vfma(vload(st_w, 2 * K + k), dn, q2)
+        q3 = vfma(vload(st_w, 3 * K + k), dn, q3)
+        q4 = vfma(vload(st_w, 4 * K + k), dn, q4)
+        q5 = vfma(vload(st_w, 5 * K + k), dn, q5)
+        q6 = vfma(vload(st_w, 6 * K + k), dn, q6)
+        q7 = vfma(vload(st_w, 7 * K + k), dn, q7)
+        q8 = vfma(vload(st_w, 8 * K + k), dn, q8)
+    k11 = -(q2 - _gather_lanes(rest_b, 0, i0, i1, i2, i3))
+    k12 = -(q3 - _gather_lanes(rest_b, 1, i0, i1, i2, i3))
+    k22 = -(q4 - _gather_lanes(rest_b, 2, i0, i1, i2, i3))
+    a0, b0, c0_ = _epsbar(i0, vf_ptr, vf_face, eps, vf_K, phi)
+    a1, b1, c1_ = _epsbar(i1, vf_ptr, vf_face, eps, vf_K, phi)
+    a2, b2, c2_ = _epsbar(i2, vf_ptr, vf_face, eps, vf_K, phi)
+    a3, b3, c3_ = _epsbar(i3, vf_ptr, vf_face, eps, vf_K, phi)
+    e11 = vset(a0, a1, a2, a3)
+    e12 = vset(b0, b1, b2, b3)
+    e22 = vset(c0_, c1_, c2_, c3_)
+    i11 = _gather_lanes(ainv, 0, i0, i1, i2, i3)
+    i12 = _gather_lanes(ainv, 1, i0, i1, i2, i3)
+    i22 = _gather_lanes(ainv, 2, i0, i1, i2, i3)
+    m11, m12, m22 = contract(2.0 * xi, i11, i12, i22, k11, k12, k22)
+    s11, s12, s22 = contract(phi, i11, i12, i22, e11, e12, e22)
+    m11 = m11 + s11
+    m12 = m12 + s12
+    m22 = m22 + s22
+    cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
+    _store_lanes(cstress, 0, i0, i1, i2, i3, cs11)
+    _store_lanes(cstress, 1, i0, i1, i2, i3, cs12)
+    _store_lanes(cstress, 2, i0, i1, i2, i3, cs22)
+    _store_lanes(kap, 0, i0, i1, i2, i3, k11)
+    _store_lanes(kap, 1, i0, i1, i2, i3, k12)
+    _store_lanes(kap, 2, i0, i1, i2, i3, k22)
+    _store_lanes(epsbar, 0, i0, i1, i2, i3, e11)
+    _store_lanes(epsbar, 1, i0, i1, i2, i3, e12)
+    _store_lanes(epsbar, 2, i0, i1, i2, i3, e22)
+    A = vset(dual_area[i0], dual_area[i1], dual_area[i2], dual_area[i3])
+    g11 = -A * m11
+    g12 = -2.0 * A * m12
+    g22 = -A * m22
+    # pass 3: residuals along the normal and h_k = dE_i/d(dn_k)
+    om = vset(stab[i0], stab[i1], stab[i2], stab[i3])
+    e = splat(0.0)
+    for s in range(ns):
+        k = p0 + 4 * s
+        dd = (vload(sc, r0 + 3 * W + 4 * s) - vload(st_sigma, k)
+              - _phi_dot(vload(st_uv, k), vload(st_uv, K + k), 0.0, 0.0, q2, q3, q4, q5, q6,
+                         q7, q8))
+        vstore(sc, r0 + 4 * W + 4 * s,
+               2.0 * om * dd + vload(st_w, 2 * K + k) * g11 + vload(st_w, 3 * K + k) * g12
+               + vload(st_w, 4 * K + k) * g22)
+        if energy:
+            e = vfma(dd, dd, e)
+    if energy:
+        e = om * e
+        estab[i0] = lane(e, 0)
+        estab[i1] = lane(e, 1)
+        estab[i2] = lane(e, 2)
+        estab[i3] = lane(e, 3)
+    # V = sum_k h_k d_k and sum_k h_k
+    v0 = splat(0.0)
+    v1 = splat(0.0)
+    v2 = splat(0.0)
+    hs = splat(0.0)
+    for s in range(ns):
+        h = vload(sc, r0 + 4 * W + 4 * s)
+        v0 = vfma(h, vload(sc, r0 + 4 * s), v0)
+        v1 = vfma(h, vload(sc, r0 + W + 4 * s), v1)
+        v2 = vfma(h, vload(sc, r0 + 2 * W + 4 * s), v2)
+        hs = hs + h
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    t0 = (v0 - vn * n0) * icn
+    t1 = (v1 - vn * n1) * icn
+    t2 = (v2 - vn * n2) * icn
+    j10, j11, j12 = _cross(a20, a21, a22, t0, t1, t2)
+    j20, j21, j22 = _cross(t0, t1, t2, a10, a11, a12)
+    # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum
+    for s in range(ns):
+        k = p0 + 4 * s
+        h = vload(sc, r0 + 4 * W + 4 * s)
+        w0 = vload(st_w, k)
+        w1 = vload(st_w, K + k)
+        vstore(contrib, k, w0 * j10 + w1 * j20 + h * n0)
+        vstore(contrib, K + k, w0 * j11 + w1 * j21 + h * n1)
+        vstore(contrib, 2 * K + k, w0 * j12 + w1 * j22 + h * n2)
+    c0w = vload(st_w, b)
+    c1w = vload(st_w, K + b)
+    vstore(contrib, b, c0w * j10 + c1w * j20 - hs * n0)
+    vstore(contrib, K + b, c0w * j11 + c1w * j21 - hs * n1)
+    vstore(contrib, 2 * K + b, c0w * j12 + c1w * j22 - hs * n2)
+
+
 @kernel(parallel=True)
-def vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
-                dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
-                energy):
-    """:func:`_vertex` for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
+def vertex_pass(x, g_vert, g_ptr, s_vert, s_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
+                vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib,
+                cstress, kap, epsbar, estab, energy):
+    """The vertex term for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
-    contrib (3,K). Parallel over ``scratch.shape[0]`` chunks of vertices, each with its
-    own scratch row (no allocation, no shared writes)."""
-    n = x.shape[0]
+    contrib (3,K), all stencil arrays in lane order (:func:`lane_layout`). The lane groups
+    run four vertices at a time (:func:`_vertex_lanes`), the few single vertices left
+    (stencil sizes that do not fill a group) one at a time (:func:`_vertex`). Parallel over
+    ``scratch.shape[0]`` chunks, each with its own scratch row (no allocation, no shared
+    writes)."""
     nch = scratch.shape[0]
-    # the chunk size follows from the scratch the caller allocated (not from a module
+    # the chunk sizes follow from the scratch the caller allocated (not from a module
     # constant, which numba's cache would freeze into the compiled code)
-    chunk = (n + nch - 1) // nch
+    ng = g_vert.shape[0]
+    gchunk = (ng + nch - 1) // nch
+    nsv = s_vert.shape[0]
+    schunk = (nsv + nch - 1) // nch
     for ch in nb.prange(nch):
-        for i in range(ch * chunk, min(n, (ch + 1) * chunk)):
-            _vertex(i, x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps,
-                    vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch, contrib, cstress, kap,
-                    epsbar, estab, energy)
+        for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
+            _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
+                          vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch,
+                          contrib, cstress, kap, epsbar, estab, energy)
+        for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
+            _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], x, st_idx, st_w, st_uv, st_sigma, stab,
+                    vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch,
+                    contrib, cstress, kap, epsbar, estab, energy)
+
+
+def lane_layout(st_ptr: np.ndarray, lanes: int = LANES):
+    """Order of the stencil entries for :func:`vertex_pass`.
+
+    Vertices with the same stencil size form groups of ``lanes`` (in vertex order within a
+    size, groups sorted by their first vertex); the entries of a group are interleaved,
+    entry s of lane l at ``g_ptr[g] + lanes s + l`` (s = 0 the centre). The vertices left
+    over (fewer than ``lanes`` of a size; ``lanes = 1`` puts every vertex here) follow as
+    plain CSR blocks ``s_ptr[u] : s_ptr[u + 1]``.
+
+    Returns ``g_vert`` (G, lanes) int64, ``g_ptr`` (G+1,), ``s_vert`` (S,), ``s_ptr``
+    (S+1,) and ``pos`` (K,): the lane-order position of CSR entry k (a permutation)."""
+    n = len(st_ptr) - 1
+    sizes = np.diff(st_ptr)
+    order = np.argsort(sizes, kind='stable')
+    _, first, counts = np.unique(sizes[order], return_index=True, return_counts=True)
+    rank = np.arange(n) - np.repeat(first, counts)
+    grouped = rank < np.repeat(counts // lanes * lanes, counts)
+    g_vert = order[grouped].reshape(-1, lanes) if lanes > 1 else np.zeros((0, lanes), np.int64)
+    if lanes == 1:
+        grouped[:] = False
+    g_vert = g_vert[np.argsort(g_vert[:, 0], kind='stable')].astype(np.int64)
+    s_vert = np.sort(order[~grouped]).astype(np.int64)
+    g_size = sizes[g_vert[:, 0]]
+    g_ptr = np.zeros(len(g_vert) + 1, dtype=np.int64)
+    np.cumsum(lanes * g_size, out=g_ptr[1:])
+    s_ptr = np.full(len(s_vert) + 1, g_ptr[-1], dtype=np.int64)
+    np.cumsum(sizes[s_vert], out=s_ptr[1:])
+    s_ptr[1:] += g_ptr[-1]
+    pos = np.empty(st_ptr[-1], dtype=np.int64)
+    # grouped entries: vertex g_vert[g, l], its entry s -> g_ptr[g] + lanes s + l
+    gv = g_vert.ravel()
+    sz = sizes[gv]
+    s_in = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+    pos[np.repeat(st_ptr[gv], sz) + s_in] = (
+        np.repeat(np.repeat(g_ptr[:-1], lanes) + np.tile(np.arange(lanes), len(g_vert)), sz)
+        + lanes * s_in)
+    sz = sizes[s_vert]
+    s_in = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+    pos[np.repeat(st_ptr[s_vert], sz) + s_in] = np.repeat(s_ptr[:-1], sz) + s_in
+    return g_vert, g_ptr, s_vert, s_ptr, pos
 
 
 @kernel(inline='always')
@@ -474,14 +709,14 @@ def variational_stages(x, ops, mat, work, energy):
     """Everything of the variational force but the final gather: face strains, the vertex
     pass and the face gradients (work arrays); ``energy`` also fills the jet residual
     energy estab."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, st_ptr, st_idx, st_w, st_uv,
-     st_sigma, stab, tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner, vf_K) = ops
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, _, _, _, st_uv, st_sigma, stab,
+     _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad)
-    vertex_pass(x, st_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
-                dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
-                energy)
+    vertex_pass(x, g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w, st_uv, st_sigma, stab, vf_ptr,
+                vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib,
+                cstress, kap, epsbar, estab, energy)
     if phi != 0.0:
         face_coupling(faces, F, dinv, face_area, K, cstress, fgrad)
 

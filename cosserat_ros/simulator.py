@@ -35,6 +35,7 @@ from .integrator import (internal_forces as _internal_forces, METHOD_COVARIANT,
                          METHOD_VARIATIONAL, run_steps, stability_limit)
 from .material import Material
 from .mesh import ClothMesh
+from .simd import LANES
 
 __all__ = ['ClothSimulator', 'Material', 'SimulationDiverged']
 
@@ -85,10 +86,13 @@ class ClothSimulator:
     check_dt : bool
         Compare ``dt`` with :meth:`critical_dt` on construction (costs ~100 force
         evaluations) and warn when it is too large.
+    simd : bool
+        Run the vertex pass four vertices per SIMD vector (default). False runs it one
+        vertex at a time, the same formulas; kept for tests and comparison.
     """
 
     def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
-                 divergence: str = 'variational', check_dt: bool = True):
+                 divergence: str = 'variational', check_dt: bool = True, simd: bool = True):
         if not isinstance(mesh, ClothMesh):
             raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
         if not isinstance(material, Material):
@@ -122,14 +126,30 @@ class ClothSimulator:
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
+        # the vertex pass reads the stencils in lane order (forces.lane_layout: groups of
+        # four vertices with interleaved entries, for the SIMD lanes); its stencil
+        # gradients come out in that order, so the transposed stencil points there too
+        g_vert, g_ptr, s_vert, s_ptr, pos = _forces.lane_layout(
+            self._jet.st_ptr, LANES if simd else 1)
+        ln_idx = np.empty_like(self._jet.st_idx)
+        ln_idx[pos] = self._jet.st_idx
+        ln_w = np.empty_like(self._jet.st_w)
+        ln_w[:, pos] = self._jet.st_w
+        ln_uv = np.empty_like(self._st_uv)
+        ln_uv[:, pos] = self._st_uv
+        ln_sigma = np.empty_like(self._st_sigma)
+        ln_sigma[pos] = self._st_sigma
+        # ops: the CSR stencils (st_ptr, st_idx, st_w) serve the covariant route; st_uv,
+        # st_sigma, tr_slot and ln_* are in lane order
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
-                     self._jet.st_w, self._st_uv, self._st_sigma, self._stab,
-                     self._jet.tr_ptr, self._jet.tr_slot,
-                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K)
+                     self._jet.st_w, ln_uv, ln_sigma, self._stab,
+                     self._jet.tr_ptr, pos[self._jet.tr_slot],
+                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K,
+                     g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
         nch = -(-n // VERTEX_CHUNK)
-        smax = int(np.diff(self._jet.st_ptr).max())
+        smax = LANES * int(np.diff(self._jet.st_ptr).max())
         # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
         self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),

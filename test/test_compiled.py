@@ -1,15 +1,25 @@
-"""The numba set-up: one option set, and stale caches of cross-file kernels are dropped."""
+"""The numba set-up: one option set, stale caches of cross-file kernels are dropped, and the
+explicit SIMD vectors of the vertex pass compute what the one-vertex-at-a-time code does."""
 import pathlib
 import re
 
+import numba as nb
+import numpy as np
+import pytest
+import trimesh
+
 import cosserat_ros
 from cosserat_ros import compiled
+from cosserat_ros.forces import lane_layout
+from cosserat_ros.mesh import ClothMesh, grid_mesh
+from cosserat_ros.simd import lane, splat, vfma, vload, vset, vsqrt, vstore
+from cosserat_ros.simulator import ClothSimulator, Material
 
 
 def test_every_kernel_module_is_hashed():
     pkg = pathlib.Path(cosserat_ros.__file__).parent
     with_kernels = {p.name for p in pkg.glob('*.py')
-                    if re.search(r'@(nb\.njit|kernel)\(', p.read_text())}
+                    if re.search(r'@(nb\.njit|kernel)\(|@intrinsic\b', p.read_text())}
     # compiled.py holds the options every kernel is compiled with
     assert with_kernels | {'compiled.py'} == set(compiled.KERNEL_MODULES)
 
@@ -39,3 +49,60 @@ def test_unwritable_cache_is_left_alone(tmp_path):
     (tmp_path / '__pycache__').write_text('not a directory')   # cannot hold a cache
     assert not compiled.invalidate_stale_cache(str(tmp_path))
     assert (tmp_path / '__pycache__').read_text() == 'not a directory'
+
+
+@nb.njit
+def _vector_ops(a, b, c, out):
+    for k in range(0, a.size, 4):
+        va = vload(a, k)
+        vb = vload(b, k)
+        vc = vload(c, k)
+        r = vfma(va, vb, vc) - va / vb + 2.0 * vsqrt(vc) - (-va) * 0.5 + splat(1.0)
+        vstore(out, k, r)
+    return lane(vset(out[0], out[1], 3.0, out[3]), 2)
+
+
+def test_simd_vectors_compute_lane_by_lane_like_numpy():
+    rng = np.random.default_rng(0)
+    a, b, c = (rng.uniform(0.5, 2.0, 16) for _ in range(3))
+    out = np.zeros(16)
+    assert _vector_ops(a, b, c, out) == 3.0
+    ref = a * b + c - a / b + 2.0 * np.sqrt(c) + a * 0.5 + 1.0
+    assert np.allclose(out, ref, rtol=1e-15, atol=0)
+
+
+@pytest.mark.parametrize('lanes', [1, 4])
+def test_lane_layout_is_a_permutation_of_whole_stencils(lanes):
+    st_ptr = np.cumsum([0] + [3, 5, 3, 3, 5, 3, 4, 3, 5, 5, 5, 3])
+    g_vert, g_ptr, s_vert, s_ptr, pos = lane_layout(st_ptr, lanes)
+    assert sorted(pos) == list(range(st_ptr[-1]))
+    assert sorted(np.concatenate([g_vert.ravel(), s_vert])) == list(range(len(st_ptr) - 1))
+    sizes = np.diff(st_ptr)
+    for g, verts in enumerate(g_vert):
+        assert len(set(sizes[verts])) == 1                    # one stencil size per group
+        for l, i in enumerate(verts):                         # entry s of lane l
+            s = np.arange(sizes[i])
+            assert list(pos[st_ptr[i] + s]) == list(g_ptr[g] + lanes * s + l)
+    for u, i in enumerate(s_vert):                            # leftovers: plain CSR blocks
+        assert list(pos[st_ptr[i]:st_ptr[i + 1]]) == list(range(s_ptr[u], s_ptr[u + 1]))
+    if lanes == 4:      # sizes 3 (x6), 5 (x5), 4 (x1): one group of each of 3 and 5
+        assert len(g_vert) == 2 and len(s_vert) == 4
+
+
+@pytest.mark.parametrize('name', ['regular', 'irregular', 'icosphere'])
+def test_simd_vertex_pass_matches_one_vertex_at_a_time(name):
+    mesh = (ClothMesh(*(lambda m: (m.vertices, m.faces))(
+        trimesh.creation.icosphere(subdivisions=2, radius=0.5))) if name == 'icosphere'
+        else grid_mesh(13, 11, pattern=name, seed=2))
+    mat = Material(zeta=20.0, xi=1e-3, phi=1e-3, density=0.2)
+    sims = [ClothSimulator(mesh, mat, dt=1e-4, check_dt=False, simd=f) for f in (True, False)]
+    assert sims[0]._ops[19].shape[0] > 0 and sims[1]._ops[19].shape[0] == 0
+    x = mesh.vertices + 0.02 * np.random.default_rng(4).standard_normal(mesh.vertices.shape)
+    f, e = [], []
+    for sim in sims:
+        sim.set_positions(x)
+        f.append(sim.internal_forces())
+        e.append(sim.energy())
+    assert np.abs(f[0] - f[1]).max() <= 1e-13 * np.abs(f[1]).max()
+    for key in ('stretching', 'bending', 'coupling'):
+        assert e[0][key] == pytest.approx(e[1][key], rel=1e-13, abs=1e-300)
