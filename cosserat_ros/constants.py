@@ -3,6 +3,10 @@
 #: A triangle whose area is below this fraction of (mean edge length)^2 is degenerate.
 DEGENERATE_AREA_RTOL = 1e-12
 
+#: Stencil templates: two stencils with the same chart coordinates, in the same order, to
+#: this fraction of the stencil radius share one set of jet weights (geometry.py).
+JET_TEMPLATE_TOL = 1e-9
+
 #: Jet fits: a stencil whose scaled normal matrix has a reciprocal condition number below
 #: this is grown by one more ring (up to JET_MAX_RINGS).
 JET_RCOND_MIN = 1e-6

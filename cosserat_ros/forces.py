@@ -217,11 +217,11 @@ def _weighted_offsets(ns, scratch, ch):
 
 
 @kernel(inline='always')
-def _residual(sc, ch, s, k, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8):
+def _residual(sc, ch, s, k, kw, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8):
     """rho_k . n - sigma_k = DN_k - phi_k . q - sigma_k for stencil entry k (scratch slot
-    s), q_1 = q_2 = 0."""
+    s, its chart coordinates at kw), q_1 = q_2 = 0."""
     return (sc[ch, 3, s] - st_sigma[k]
-            - _phi_dot(st_uv[0, k], st_uv[1, k], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
+            - _phi_dot(st_uv[0, kw], st_uv[1, kw], 0.0, 0.0, q2, q3, q4, q5, q6, q7, q8))
 
 
 @kernel(inline='always')
@@ -242,7 +242,7 @@ def _epsbar(i, vf_ptr, vf_face, eps, vf_K, phi):
 
 
 @kernel(inline='always')
-def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
+def _vertex(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
             dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab,
             energy):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
@@ -271,6 +271,7 @@ def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     stays scalar (vector gathers are slower here)."""
     p0 = max(pc + 1, 0)
     ns = p1 - p0
+    q0 = max(pw + 1, 0)     # the weights and chart coordinates of entry p0 + s: q0 + s
     # one coefficient's weights over the stencil are contiguous: the loops below run over
     # the stencil entries k = p0 + s as vectors
     xi0 = x[i, 0]
@@ -293,12 +294,12 @@ def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
         sc[ch, 0, s] = d0
         sc[ch, 1, s] = d1
         sc[ch, 2, s] = d2
-        a10 += st_w[0, k] * d0
-        a11 += st_w[0, k] * d1
-        a12 += st_w[0, k] * d2
-        a20 += st_w[1, k] * d0
-        a21 += st_w[1, k] * d1
-        a22 += st_w[1, k] * d2
+        a10 += st_w[0, q0 + s] * d0
+        a11 += st_w[0, q0 + s] * d1
+        a12 += st_w[0, q0 + s] * d2
+        a20 += st_w[1, q0 + s] * d0
+        a21 += st_w[1, q0 + s] * d1
+        a22 += st_w[1, q0 + s] * d2
     c0, c1, c2 = _cross(a10, a11, a12, a20, a21, a22)
     cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     icn = 1.0 / cn
@@ -307,7 +308,7 @@ def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     n2 = c2 * icn
     # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab
     # (Eq. 11). q_1 = a_1 . n and q_2 = a_2 . n vanish.
-    q2, q3, q4, q5, q6, q7, q8 = _normal_jet(ns, p0, st_w, sc, ch, n0, n1, n2)
+    q2, q3, q4, q5, q6, q7, q8 = _normal_jet(ns, q0, st_w, sc, ch, n0, n1, n2)
     k11 = -(q2 - rest_b[i, 0])
     k12 = -(q3 - rest_b[i, 1])
     k22 = -(q4 - rest_b[i, 2])
@@ -339,13 +340,15 @@ def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     # the chart coordinates) and h_k = dE_i/d(dn_k)
     om = stab[i]            # c_i omega, omega = 1 / (stencil size)
     for s in range(ns):
-        k = p0 + s
-        dd = _residual(sc, ch, s, k, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
-        sc[ch, 4, s] = 2.0 * om * dd + st_w[2, k] * g11 + st_w[3, k] * g12 + st_w[4, k] * g22
+        kw = q0 + s
+        dd = _residual(sc, ch, s, p0 + s, kw, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
+        sc[ch, 4, s] = (2.0 * om * dd + st_w[2, kw] * g11 + st_w[3, kw] * g12
+                        + st_w[4, kw] * g22)
     if energy:      # the residual energy only when asked for (not in the step)
         e = 0.0
         for s in range(ns):
-            dd = _residual(sc, ch, s, p0 + s, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
+            dd = _residual(sc, ch, s, p0 + s, q0 + s, st_uv, st_sigma, q2, q3, q4, q5, q6, q7,
+                           q8)
             e += dd * dd
         estab[i] = om * e
     v0, v1, v2, hs = _weighted_offsets(ns, sc, ch)
@@ -361,11 +364,13 @@ def _vertex(i, pc, p1, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, 
     for s in range(ns):
         k = p0 + s
         h = sc[ch, 4, s]
-        contrib[0, k] = st_w[0, k] * j10 + st_w[1, k] * j20 + h * n0
-        contrib[1, k] = st_w[0, k] * j11 + st_w[1, k] * j21 + h * n1
-        contrib[2, k] = st_w[0, k] * j12 + st_w[1, k] * j22 + h * n2
-    c0w = st_w[0, p0 - 1]
-    c1w = st_w[1, p0 - 1]
+        w0 = st_w[0, q0 + s]
+        w1 = st_w[1, q0 + s]
+        contrib[0, k] = w0 * j10 + w1 * j20 + h * n0
+        contrib[1, k] = w0 * j11 + w1 * j21 + h * n1
+        contrib[2, k] = w0 * j12 + w1 * j22 + h * n2
+    c0w = st_w[0, q0 - 1]
+    c1w = st_w[1, q0 - 1]
     contrib[0, p0 - 1] = c0w * j10 + c1w * j20 - hs * n0
     contrib[1, p0 - 1] = c0w * j11 + c1w * j21 - hs * n1
     contrib[2, p0 - 1] = c0w * j12 + c1w * j22 - hs * n2
@@ -387,7 +392,7 @@ def _store_lanes(a, c, i0, i1, i2, i3, v):
 
 
 @kernel(inline='always')
-def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
+def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
                   eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap,
                   epsbar, estab, energy):
     """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
@@ -400,11 +405,14 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
     x[j] are gathered lane by lane. The stencil loops have no remainder and no horizontal
     sums, and the per-vertex work (normal, resultants, adjoint) is shared four ways."""
     K = st_idx.shape[0]
+    KW = st_w.shape[1]
     W = sc.shape[2]
     r0 = ch * 5 * W          # scratch rows d_0, d_1, d_2, dn, h of this chunk (flat offsets)
     b = g_ptr[g]
     ns = (g_ptr[g + 1] - b) // 4 - 1
     p0 = b + 4
+    bw = g_wptr[g]          # weights and chart coordinates: the group's (shared) block
+    q0 = bw + 4
     i0 = g_vert[g, 0]
     i1 = g_vert[g, 1]
     i2 = g_vert[g, 2]
@@ -421,6 +429,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
     a22 = splat(0.0)
     for s in range(ns):
         k = p0 + 4 * s
+        kw = q0 + 4 * s
         j0 = nb.uint64(st_idx[k])
         j1 = nb.uint64(st_idx[k + 1])
         j2 = nb.uint64(st_idx[k + 2])
@@ -431,8 +440,8 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
         vstore(sc, r0 + 4 * s, d0)
         vstore(sc, r0 + W + 4 * s, d1)
         vstore(sc, r0 + 2 * W + 4 * s, d2)
-        w0 = vload(st_w, k)
-        w1 = vload(st_w, K + k)
+        w0 = vload(st_w, kw)
+        w1 = vload(st_w, KW + kw)
         a10 = vfma(w0, d0, a10)
         a11 = vfma(w0, d1, a11)
         a12 = vfma(w0, d2, a12)
@@ -455,16 +464,17 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
     q8 = splat(0.0)
     for s in range(ns):
         k = p0 + 4 * s
+        kw = q0 + 4 * s
         dn = (vload(sc, r0 + 4 * s) * n0 + vload(sc, r0 + W + 4 * s) * n1
               + vload(sc, r0 + 2 * W + 4 * s) * n2)
         vstore(sc, r0 + 3 * W + 4 * s, dn)
-        q2 = vfma(vload(st_w, 2 * K + k), dn, q2)
-        q3 = vfma(vload(st_w, 3 * K + k), dn, q3)
-        q4 = vfma(vload(st_w, 4 * K + k), dn, q4)
-        q5 = vfma(vload(st_w, 5 * K + k), dn, q5)
-        q6 = vfma(vload(st_w, 6 * K + k), dn, q6)
-        q7 = vfma(vload(st_w, 7 * K + k), dn, q7)
-        q8 = vfma(vload(st_w, 8 * K + k), dn, q8)
+        q2 = vfma(vload(st_w, 2 * KW + kw), dn, q2)
+        q3 = vfma(vload(st_w, 3 * KW + kw), dn, q3)
+        q4 = vfma(vload(st_w, 4 * KW + kw), dn, q4)
+        q5 = vfma(vload(st_w, 5 * KW + kw), dn, q5)
+        q6 = vfma(vload(st_w, 6 * KW + kw), dn, q6)
+        q7 = vfma(vload(st_w, 7 * KW + kw), dn, q7)
+        q8 = vfma(vload(st_w, 8 * KW + kw), dn, q8)
     k11 = -(q2 - _gather_lanes(rest_b, 0, i0, i1, i2, i3))
     k12 = -(q3 - _gather_lanes(rest_b, 1, i0, i1, i2, i3))
     k22 = -(q4 - _gather_lanes(rest_b, 2, i0, i1, i2, i3))
@@ -502,12 +512,13 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
     e = splat(0.0)
     for s in range(ns):
         k = p0 + 4 * s
+        kw = q0 + 4 * s
         dd = (vload(sc, r0 + 3 * W + 4 * s) - vload(st_sigma, k)
-              - _phi_dot(vload(st_uv, k), vload(st_uv, K + k), 0.0, 0.0, q2, q3, q4, q5, q6,
+              - _phi_dot(vload(st_uv, kw), vload(st_uv, KW + kw), 0.0, 0.0, q2, q3, q4, q5, q6,
                          q7, q8))
         vstore(sc, r0 + 4 * W + 4 * s,
-               2.0 * om * dd + vload(st_w, 2 * K + k) * g11 + vload(st_w, 3 * K + k) * g12
-               + vload(st_w, 4 * K + k) * g22)
+               2.0 * om * dd + vload(st_w, 2 * KW + kw) * g11 + vload(st_w, 3 * KW + kw) * g12
+               + vload(st_w, 4 * KW + kw) * g22)
         if energy:
             e = vfma(dd, dd, e)
     if energy:
@@ -536,30 +547,31 @@ def _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_p
     # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum
     for s in range(ns):
         k = p0 + 4 * s
+        kw = q0 + 4 * s
         h = vload(sc, r0 + 4 * W + 4 * s)
-        w0 = vload(st_w, k)
-        w1 = vload(st_w, K + k)
+        w0 = vload(st_w, kw)
+        w1 = vload(st_w, KW + kw)
         vstore(contrib, k, w0 * j10 + w1 * j20 + h * n0)
         vstore(contrib, K + k, w0 * j11 + w1 * j21 + h * n1)
         vstore(contrib, 2 * K + k, w0 * j12 + w1 * j22 + h * n2)
-    c0w = vload(st_w, b)
-    c1w = vload(st_w, K + b)
+    c0w = vload(st_w, bw)
+    c1w = vload(st_w, KW + bw)
     vstore(contrib, b, c0w * j10 + c1w * j20 - hs * n0)
     vstore(contrib, K + b, c0w * j11 + c1w * j21 - hs * n1)
     vstore(contrib, 2 * K + b, c0w * j12 + c1w * j22 - hs * n2)
 
 
 @kernel(parallel=True)
-def vertex_pass(x, g_vert, g_ptr, s_vert, s_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
-                vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib,
-                cstress, kap, epsbar, estab, energy):
+def vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w, st_uv,
+                st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
+                scratch, contrib, cstress, kap, epsbar, estab, energy):
     """The vertex term for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
-    contrib (3,K), all stencil arrays in lane order (:func:`lane_layout`). The lane groups
-    run four vertices at a time (:func:`_vertex_lanes`), the few single vertices left
-    (stencil sizes that do not fill a group) one at a time (:func:`_vertex`). Parallel over
-    ``scratch.shape[0]`` chunks, each with its own scratch row (no allocation, no shared
-    writes)."""
+    contrib (3,K), in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib:
+    entries; st_w, st_uv: weight blocks). The lane groups run four vertices at a time
+    (:func:`_vertex_lanes`), the few single vertices left (stencil sizes that do not fill a
+    group) one at a time (:func:`_vertex`). Parallel over ``scratch.shape[0]`` chunks, each
+    with its own scratch row (no allocation, no shared writes)."""
     nch = scratch.shape[0]
     # the chunk sizes follow from the scratch the caller allocated (not from a module
     # constant, which numba's cache would freeze into the compiled code)
@@ -569,36 +581,44 @@ def vertex_pass(x, g_vert, g_ptr, s_vert, s_ptr, st_idx, st_w, st_uv, st_sigma, 
     schunk = (nsv + nch - 1) // nch
     for ch in nb.prange(nch):
         for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
-            _vertex_lanes(g, x, g_vert, g_ptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
-                          vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch,
-                          contrib, cstress, kap, epsbar, estab, energy)
+            _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
+                          vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
+                          ch, contrib, cstress, kap, epsbar, estab, energy)
         for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
-            _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], x, st_idx, st_w, st_uv, st_sigma, stab,
-                    vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, ch,
-                    contrib, cstress, kap, epsbar, estab, energy)
+            _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], s_wptr[u], x, st_idx, st_w, st_uv,
+                    st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
+                    phi, scratch, ch, contrib, cstress, kap, epsbar, estab, energy)
 
 
-def lane_layout(st_ptr: np.ndarray, lanes: int = LANES):
-    """Order of the stencil entries for :func:`vertex_pass`.
+def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
+    """Order of the stencil entries and of the weights for :func:`vertex_pass`.
 
-    Vertices with the same stencil size form groups of ``lanes`` (in vertex order within a
-    size, groups sorted by their first vertex); the entries of a group are interleaved,
-    entry s of lane l at ``g_ptr[g] + lanes s + l`` (s = 0 the centre). The vertices left
-    over (fewer than ``lanes`` of a size; ``lanes = 1`` puts every vertex here) follow as
-    plain CSR blocks ``s_ptr[u] : s_ptr[u + 1]``.
+    Entries (indices, rest residuals, gradients): vertices with the same stencil size form
+    groups of ``lanes`` (sorted by stencil template, then vertex, within a size; groups in
+    the order of their first vertex); a group's entries are interleaved, entry s of lane l
+    at ``g_ptr[g] + lanes s + l`` (s = 0 the centre). The vertices left over (fewer than
+    ``lanes`` of a size; ``lanes = 1`` puts every vertex here) follow as plain CSR blocks
+    ``s_ptr[u] : s_ptr[u + 1]``.
 
-    Returns ``g_vert`` (G, lanes) int64, ``g_ptr`` (G+1,), ``s_vert`` (S,), ``s_ptr``
-    (S+1,) and ``pos`` (K,): the lane-order position of CSR entry k (a permutation)."""
+    Weights (and chart coordinates): a group reads the block at ``g_wptr[g]``, in the
+    same interleaved order; groups whose lanes have the same templates (geometry.py,
+    ``JetOperator.template``) share one block, so a structured sheet streams almost no
+    weights. A single vertex reads its block at ``s_wptr[u]``.
+
+    Returns ``g_vert`` (G, lanes), ``g_ptr`` (G+1,), ``g_wptr`` (G,), ``s_vert`` (S,),
+    ``s_ptr`` (S+1,), ``s_wptr`` (S,), all int64; ``pos`` (K,): the position of CSR entry
+    k in the entry order (a permutation); ``wsrc`` (KW,): the CSR entry whose weights fill
+    each slot of the weight blocks."""
     n = len(st_ptr) - 1
     sizes = np.diff(st_ptr)
-    order = np.argsort(sizes, kind='stable')
+    order = np.lexsort((np.arange(n), template, sizes))
     _, first, counts = np.unique(sizes[order], return_index=True, return_counts=True)
     rank = np.arange(n) - np.repeat(first, counts)
     grouped = rank < np.repeat(counts // lanes * lanes, counts)
-    g_vert = order[grouped].reshape(-1, lanes) if lanes > 1 else np.zeros((0, lanes), np.int64)
     if lanes == 1:
         grouped[:] = False
-    g_vert = g_vert[np.argsort(g_vert[:, 0], kind='stable')].astype(np.int64)
+    g_vert = order[grouped].reshape(-1, lanes).astype(np.int64)
+    g_vert = g_vert[np.argsort(g_vert[:, 0], kind='stable')]
     s_vert = np.sort(order[~grouped]).astype(np.int64)
     g_size = sizes[g_vert[:, 0]]
     g_ptr = np.zeros(len(g_vert) + 1, dtype=np.int64)
@@ -611,13 +631,30 @@ def lane_layout(st_ptr: np.ndarray, lanes: int = LANES):
     gv = g_vert.ravel()
     sz = sizes[gv]
     s_in = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
+    lane_of = np.tile(np.arange(lanes), len(g_vert))
     pos[np.repeat(st_ptr[gv], sz) + s_in] = (
-        np.repeat(np.repeat(g_ptr[:-1], lanes) + np.tile(np.arange(lanes), len(g_vert)), sz)
-        + lanes * s_in)
+        np.repeat(np.repeat(g_ptr[:-1], lanes) + lane_of, sz) + lanes * s_in)
     sz = sizes[s_vert]
     s_in = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
     pos[np.repeat(st_ptr[s_vert], sz) + s_in] = np.repeat(s_ptr[:-1], sz) + s_in
-    return g_vert, g_ptr, s_vert, s_ptr, pos
+    # weight blocks: one per distinct tuple of lane templates, then one per single vertex
+    blocks = {}
+    g_wptr = np.empty(len(g_vert), dtype=np.int64)
+    src = []
+    nw = 0
+    for g, verts in enumerate(g_vert):
+        key = tuple(template[verts])
+        if key not in blocks:
+            blocks[key] = nw
+            m = int(g_size[g])
+            # slot lanes s + l holds entry s of lane l (its own CSR entry: same weights)
+            src.append((st_ptr[verts][None, :] + np.arange(m)[:, None]).ravel())
+            nw += lanes * m
+        g_wptr[g] = blocks[key]
+    s_wptr = nw + s_ptr[:-1] - s_ptr[0]
+    src += [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
+    wsrc = np.concatenate(src).astype(np.int64) if src else np.zeros(0, np.int64)
+    return g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc
 
 
 @kernel(inline='always')
@@ -709,14 +746,15 @@ def variational_stages(x, ops, mat, work, energy):
     """Everything of the variational force but the final gather: face strains, the vertex
     pass and the face gradients (work arrays); ``energy`` also fills the jet residual
     energy estab."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, _, _, _, st_uv, st_sigma, stab,
-     _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w) = ops
+    (faces, dinv, face_area, K, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
+     _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+     ln_w) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad)
-    vertex_pass(x, g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w, st_uv, st_sigma, stab, vf_ptr,
-                vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch, contrib,
-                cstress, kap, epsbar, estab, energy)
+    vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv,
+                ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
+                scratch, contrib, cstress, kap, epsbar, estab, energy)
     if phi != 0.0:
         face_coupling(faces, F, dinv, face_area, K, cstress, fgrad)
 

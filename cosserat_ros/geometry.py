@@ -54,7 +54,7 @@ import warnings
 import numba as nb
 import numpy as np
 
-from .constants import JET_MAX_RINGS, JET_RCOND_MIN
+from .constants import JET_MAX_RINGS, JET_RCOND_MIN, JET_TEMPLATE_TOL
 from .mesh import ClothMesh, csr_from_pairs, k_ring
 
 __all__ = ['JetOperator', 'Geometry', 'build_jet_operator', 'compute_geometry',
@@ -79,6 +79,14 @@ class JetOperator:
     transposed CSR (``tr_ptr``, ``tr_slot``) lists, for every vertex ``j``, the stencil
     entries ``k`` (of any vertex) whose fit uses ``x[j]``: the adjoint (a discrete
     divergence) is a gather.
+
+    Stencil templates: vertices whose stencils have the same shape (chart coordinates equal
+    to ``JET_TEMPLATE_TOL`` of the stencil radius, in the same order) share the weights and
+    chart coordinates of the first such vertex, ``template[i]``. On a structured sheet that
+    is nearly every vertex, and the shared weights differ from a vertex's own by round-off
+    (~1e-13 relative); everything downstream (rest curvature, rest residuals, forces) uses
+    the shared ones, so the rest state stays exactly stress-free. The vertex pass then
+    reads one copy of the weights for many vertices (less memory traffic).
     """
 
     frames: np.ndarray    # (n, 3, 3) rest chart axes E1, E2, N (rows)
@@ -90,6 +98,7 @@ class JetOperator:
     tr_ptr: np.ndarray    # (n+1,) int64
     tr_slot: np.ndarray   # (K,) int64 index k of the entry in st_*
     rings: np.ndarray     # (n,) int64 ring depth used per vertex
+    template: np.ndarray  # (n,) int64 vertex whose weights this vertex shares (itself if none)
 
 
 def rest_frames(mesh: ClothMesh) -> np.ndarray:
@@ -179,6 +188,9 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
             warnings.warn(f'vertex {i}: even its {JET_MAX_RINGS}-ring cannot determine a '
                           'quadratic (a strip one triangle wide?); its curvature across the '
                           'degenerate direction is taken as zero', stacklevel=3)
+    template = _stencil_templates([s[2] for s in stencils], radius)
+    stencils = [(nbr, stencils[t][1], stencils[t][2])
+                for (nbr, _, _), t in zip(stencils, template)]
     lens = np.array([len(s[0]) + 1 for s in stencils], dtype=np.int64)
     st_ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(lens, out=st_ptr[1:])
@@ -196,7 +208,18 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     tr_ptr, _, order = csr_from_pairs(st_idx, src, n)
     return JetOperator(frames=frames, st_ptr=st_ptr, st_idx=st_idx, st_w=st_w, st_x=st_x,
                        radius=radius, tr_ptr=tr_ptr, tr_slot=order.astype(np.int64),
-                       rings=rings)
+                       rings=rings, template=template)
+
+
+def _stencil_templates(charts, radius) -> np.ndarray:
+    """template[i]: the first vertex whose stencil chart coordinates equal those of i (same
+    count and order) to JET_TEMPLATE_TOL of i's stencil radius; i itself if none."""
+    first = {}
+    template = np.empty(len(charts), dtype=np.int64)
+    for i, c in enumerate(charts):
+        key = np.round(c / (JET_TEMPLATE_TOL * radius[i])).astype(np.int64).tobytes()
+        template[i] = first.setdefault(key, i)
+    return template
 
 
 # --------------------------------------------------------------------------- kernels

@@ -127,26 +127,26 @@ class ClothSimulator:
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         # the vertex pass reads the stencils in lane order (forces.lane_layout: groups of
-        # four vertices with interleaved entries, for the SIMD lanes); its stencil
-        # gradients come out in that order, so the transposed stencil points there too
-        g_vert, g_ptr, s_vert, s_ptr, pos = _forces.lane_layout(
-            self._jet.st_ptr, LANES if simd else 1)
+        # four vertices with interleaved entries, for the SIMD lanes, and weight blocks
+        # shared by groups with the same stencil templates); its stencil gradients come
+        # out in that order, so the transposed stencil points there too
+        (g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc) = _forces.lane_layout(
+            self._jet.st_ptr, self._jet.template, LANES if simd else 1)
         ln_idx = np.empty_like(self._jet.st_idx)
         ln_idx[pos] = self._jet.st_idx
-        ln_w = np.empty_like(self._jet.st_w)
-        ln_w[:, pos] = self._jet.st_w
-        ln_uv = np.empty_like(self._st_uv)
-        ln_uv[:, pos] = self._st_uv
         ln_sigma = np.empty_like(self._st_sigma)
         ln_sigma[pos] = self._st_sigma
-        # ops: the CSR stencils (st_ptr, st_idx, st_w) serve the covariant route; st_uv,
-        # st_sigma, tr_slot and ln_* are in lane order
+        ln_w = np.ascontiguousarray(self._jet.st_w[:, wsrc])
+        ln_uv = np.ascontiguousarray(self._st_uv[:, wsrc])
+        # ops: the CSR stencils (st_ptr, st_idx, st_w) serve the covariant route; the
+        # vertex pass reads ln_* (uv and sigma in the st_uv, st_sigma slots) and the
+        # transposed stencil points into its entry order
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
                      self._jet.st_w, ln_uv, ln_sigma, self._stab,
                      self._jet.tr_ptr, pos[self._jet.tr_slot],
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K,
-                     g_vert, g_ptr, s_vert, s_ptr, ln_idx, ln_w)
+                     g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
         nch = -(-n // VERTEX_CHUNK)
         smax = LANES * int(np.diff(self._jet.st_ptr).max())

@@ -74,7 +74,8 @@ def test_simd_vectors_compute_lane_by_lane_like_numpy():
 @pytest.mark.parametrize('lanes', [1, 4])
 def test_lane_layout_is_a_permutation_of_whole_stencils(lanes):
     st_ptr = np.cumsum([0] + [3, 5, 3, 3, 5, 3, 4, 3, 5, 5, 5, 3])
-    g_vert, g_ptr, s_vert, s_ptr, pos = lane_layout(st_ptr, lanes)
+    g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc = lane_layout(
+        st_ptr, np.arange(len(st_ptr) - 1), lanes)
     assert sorted(pos) == list(range(st_ptr[-1]))
     assert sorted(np.concatenate([g_vert.ravel(), s_vert])) == list(range(len(st_ptr) - 1))
     sizes = np.diff(st_ptr)

@@ -230,3 +230,25 @@ def test_geometry_arrays_have_documented_shapes():
     assert g.curvature.shape == (n, 2, 2) and g.christoffel.shape == (n, 2, 2, 2)
     assert g.rest_metric.shape == (n, 2, 2) and g.rest_curvature.shape == (n, 2, 2)
     assert g.strain.shape == (n, 2, 2) and g.bending_strain.shape == (n, 2, 2)
+
+
+@pytest.mark.parametrize('pattern', ['regular', 'irregular'])
+def test_stencil_templates_share_weights_of_equal_shapes_only(pattern):
+    from cosserat_ros.geometry import build_jet_operator
+    mesh = grid_mesh(16, 12, pattern=pattern, seed=4)
+    jet = build_jet_operator(mesh)
+    n = mesh.n_vertices
+    t = jet.template
+    assert np.all(t <= np.arange(n)) and np.all(t[t] == t)      # first member is its own
+    for i in range(n):
+        a, b = jet.st_ptr[i], jet.st_ptr[i + 1]
+        ta, tb = jet.st_ptr[t[i]], jet.st_ptr[t[i] + 1]
+        assert b - a == tb - ta
+        assert np.array_equal(jet.st_w[:, a:b], jet.st_w[:, ta:tb])    # shared exactly
+        # the member's own chart coordinates match the template's to the tolerance
+        own = (mesh.vertices[jet.st_idx[a + 1:b]] - mesh.vertices[i]) @ jet.frames[i, :2].T
+        assert np.abs(own - jet.st_x[ta + 1:tb]).max() <= 1e-9 * jet.radius[i]
+    if pattern == 'regular':    # a structured sheet: a few dozen shapes (boundary ones)
+        assert len(np.unique(t)) < 60
+    else:                       # jittered vertices: every stencil its own
+        assert np.array_equal(t, np.arange(n))
