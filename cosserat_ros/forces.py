@@ -66,60 +66,77 @@ DIVERGENCE_METHODS = ('variational', 'covariant')
 
 
 @kernel(inline='always')
-def _corner_gradients(F, dinv, t, s11, s12, s22, fgrad, add):
-    """dE/dx at the three corners of face t for the stress-times-area S (face chart):
-    ``[g_1 g_2] = F S Dinv^T``, corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
+def _deformation_gradient(x, faces, dinv, t):
+    """F_t = [x1 - x0, x2 - x0] Dinv_t (3x2) of face t, returned row by row (F_00, F_01,
+    F_10, F_11, F_20, F_21). Recomputed where needed rather than stored (memory traffic)."""
+    i0 = faces[t, 0]
+    i1 = faces[t, 1]
+    i2 = faces[t, 2]
     d00 = dinv[t, 0, 0]
     d01 = dinv[t, 0, 1]
     d10 = dinv[t, 1, 0]
     d11 = dinv[t, 1, 1]
-    for k in range(3):
-        p0 = F[t, k, 0] * s11 + F[t, k, 1] * s12
-        p1 = F[t, k, 0] * s12 + F[t, k, 1] * s22
-        g1 = p0 * d00 + p1 * d01
-        g2 = p0 * d10 + p1 * d11
-        if add:
-            fgrad[t, 1, k] += g1
-            fgrad[t, 2, k] += g2
-            fgrad[t, 0, k] -= g1 + g2
-        else:
-            fgrad[t, 1, k] = g1
-            fgrad[t, 2, k] = g2
-            fgrad[t, 0, k] = -g1 - g2
+    e10 = x[i1, 0] - x[i0, 0]
+    e20 = x[i2, 0] - x[i0, 0]
+    e11 = x[i1, 1] - x[i0, 1]
+    e21 = x[i2, 1] - x[i0, 1]
+    e12 = x[i1, 2] - x[i0, 2]
+    e22 = x[i2, 2] - x[i0, 2]
+    return (e10 * d00 + e20 * d10, e10 * d01 + e20 * d11,
+            e11 * d00 + e21 * d10, e11 * d01 + e21 * d11,
+            e12 * d00 + e22 * d10, e12 * d01 + e22 * d11)
+
+
+@kernel(inline='always')
+def _corner_gradient_row(t, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
+    """Coordinate k (row (fa, fb) of F) of the corner gradients ``[g_1 g_2] = F S Dinv^T``
+    of face t; corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
+    p0 = fa * s11 + fb * s12
+    p1 = fa * s12 + fb * s22
+    g1 = p0 * dinv[t, 0, 0] + p1 * dinv[t, 0, 1]
+    g2 = p0 * dinv[t, 1, 0] + p1 * dinv[t, 1, 1]
+    if add:
+        fgrad[t, 1, k] += g1
+        fgrad[t, 2, k] += g2
+        fgrad[t, 0, k] -= g1 + g2
+    else:
+        fgrad[t, 1, k] = g1
+        fgrad[t, 2, k] = g2
+        fgrad[t, 0, k] = -g1 - g2
+
+
+@kernel(inline='always')
+def _corner_gradients(x, faces, dinv, t, s11, s12, s22, fgrad, add):
+    """dE/dx at the three corners of face t for the stress-times-area S (face chart):
+    ``[g_1 g_2] = F S Dinv^T``, corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
+    f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
+    _corner_gradient_row(t, 0, f00, f01, s11, s12, s22, dinv, fgrad, add)
+    _corner_gradient_row(t, 1, f10, f11, s11, s12, s22, dinv, fgrad, add)
+    _corner_gradient_row(t, 2, f20, f21, s11, s12, s22, dinv, fgrad, add)
 
 
 @kernel(parallel=True)
-def face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad):
-    """Per face: deformation gradient F (m,3,2), Green strain eps (m,3) = (11, 12, 22)
+def face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad):
+    """Per face: Green strain eps (m,3) = (11, 12, 22) of the deformation gradient F
     (Eq. 17) and the membrane's corner gradients fgrad (m,3,3) = d(area W_m)/dx_corner,
     with ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
     m = faces.shape[0]
     for t in nb.prange(m):
-        i0 = faces[t, 0]
-        i1 = faces[t, 1]
-        i2 = faces[t, 2]
-        d00 = dinv[t, 0, 0]
-        d01 = dinv[t, 0, 1]
-        d10 = dinv[t, 1, 0]
-        d11 = dinv[t, 1, 1]
-        for k in range(3):
-            e1 = x[i1, k] - x[i0, k]
-            e2 = x[i2, k] - x[i0, k]
-            F[t, k, 0] = e1 * d00 + e2 * d10
-            F[t, k, 1] = e1 * d01 + e2 * d11
-        f11 = F[t, 0, 0] ** 2 + F[t, 1, 0] ** 2 + F[t, 2, 0] ** 2
-        f12 = F[t, 0, 0] * F[t, 0, 1] + F[t, 1, 0] * F[t, 1, 1] + F[t, 2, 0] * F[t, 2, 1]
-        f22 = F[t, 0, 1] ** 2 + F[t, 1, 1] ** 2 + F[t, 2, 1] ** 2
-        e11 = 0.5 * (f11 - 1.0)
-        e12 = 0.5 * f12
-        e22 = 0.5 * (f22 - 1.0)
+        f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
+        e11 = 0.5 * (f00 * f00 + f10 * f10 + f20 * f20 - 1.0)
+        e12 = 0.5 * (f00 * f01 + f10 * f11 + f20 * f21)
+        e22 = 0.5 * (f01 * f01 + f11 * f11 + f21 * f21 - 1.0)
         eps[t, 0] = e11
         eps[t, 1] = e12
         eps[t, 2] = e22
         c = face_area[t] * 2.0 * zeta
         tr = e11 + e22
-        _corner_gradients(F, dinv, t, c * (tr + 2.0 * e11), c * (2.0 * e12),
-                          c * (tr + 2.0 * e22), fgrad, False)
+        s11 = c * (tr + 2.0 * e11)
+        s12 = c * (2.0 * e12)
+        s22 = c * (tr + 2.0 * e22)
+        _corner_gradient_row(t, 0, f00, f01, s11, s12, s22, dinv, fgrad, False)
+        _corner_gradient_row(t, 1, f10, f11, s11, s12, s22, dinv, fgrad, False)
+        _corner_gradient_row(t, 2, f20, f21, s11, s12, s22, dinv, fgrad, False)
 
 
 @kernel(inline='always')
@@ -691,7 +708,7 @@ def jet_normal_residuals(x, st_ptr, st_idx, st_w, st_uv, out):
 
 
 @kernel(parallel=True)
-def face_coupling(faces, F, dinv, face_area, K, cstress, fgrad):
+def face_coupling(x, faces, dinv, face_area, K, cstress, fgrad):
     """Adds the coupling's corner gradients: the stress-times-area
     ``S_t = sum_{i in t} area_t / 3 K_it Theta kap_i K_it^T`` of the vertex strain average
     (module docstring). Only run when phi != 0."""
@@ -708,7 +725,7 @@ def face_coupling(faces, F, dinv, face_area, K, cstress, fgrad):
             s11 += a * q11
             s12 += a * q12
             s22 += a * q22
-        _corner_gradients(F, dinv, t, s11, s12, s22, fgrad, True)
+        _corner_gradients(x, faces, dinv, t, s11, s12, s22, fgrad, True)
 
 
 @kernel(inline='always')
@@ -750,13 +767,13 @@ def variational_stages(x, ops, mat, work, energy):
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
      ln_w) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
-    F, eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
-    face_membrane(x, faces, dinv, face_area, zeta, F, eps, fgrad)
+    eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
+    face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad)
     vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv,
                 ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
                 scratch, contrib, cstress, kap, epsbar, estab, energy)
     if phi != 0.0:
-        face_coupling(faces, F, dinv, face_area, K, cstress, fgrad)
+        face_coupling(x, faces, dinv, face_area, K, cstress, fgrad)
 
 
 @kernel()
@@ -765,7 +782,7 @@ def variational_forces(x, ops, mat, work, force, energy=False):
     (and, with ``energy``, the jet residual energy in the work arrays)."""
     variational_stages(x, ops, mat, work, energy)
     vf_ptr, vf_face, vf_corner = ops[15], ops[16], ops[17]
-    gather_forces(vf_ptr, vf_face, vf_corner, work[6], ops[13], ops[14], work[7], force)
+    gather_forces(vf_ptr, vf_face, vf_corner, work[5], ops[13], ops[14], work[6], force)
 
 
 @kernel(parallel=True)

@@ -59,7 +59,7 @@ def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinn
     last stage of the variational force (the gather of corner and stencil gradients) runs
     in the same pass and fills ``force``; otherwise ``force`` is read as given."""
     tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
-    fgrad, contrib = work_arrays[6], work_arrays[7]
+    fgrad, contrib = work_arrays[5], work_arrays[6]
     work = 0.0
     diss = 0.0
     bad = 0

@@ -150,8 +150,8 @@ class ClothSimulator:
         self._cov = (self._rest_a, self._st_T)
         nch = -(-n // VERTEX_CHUNK)
         smax = LANES * int(np.diff(self._jet.st_ptr).max())
-        # F, eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
-        self._work = (np.zeros((m, 3, 2)), np.zeros((m, 3)), np.zeros((n, 3)),
+        # eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
+        self._work = (np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
                       np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 5, smax)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
@@ -446,7 +446,7 @@ class ClothSimulator:
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
         _forces.variational_forces(self._x, self._ops, self._mat, self._work, f, True)
-        _, eps, _, kap, epsbar, estab = self._work[:6]
+        eps, _, kap, epsbar, estab = self._work[:5]
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
