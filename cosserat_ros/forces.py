@@ -260,8 +260,7 @@ def _epsbar(i, vf_ptr, vf_face, eps, vf_K, phi):
 
 @kernel(inline='always')
 def _vertex(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K,
-            dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab,
-            energy):
+            dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap, epsbar, estab):
     """Bending, coupling and jet hourglass control of vertex i, and their adjoint.
 
     Energy ``E_i(dn, n)`` with ``dn_k = d_k . n`` (``d_k = x_j - x_i`` over the stencil):
@@ -277,8 +276,9 @@ def _vertex(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_fa
     for the uniform fit weights), so the residual term needs no jet adjoint of its own.
     Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, coordinate-major (3, K);
     the centre's (minus the sum of the others) comes from the centre weights and
-    ``sum_k h_k``. ``sc[ch]`` (5, S) is the chunk's scratch; ``energy`` also writes the
-    residual energy estab[i].
+    ``sum_k h_k``. ``sc[ch]`` (5, S) is the chunk's scratch. Also writes the residual
+    energy estab[i] (one multiply-add per entry: cheaper than a second compiled variant of
+    the pass for the energy).
 
     Written for the vectoriser: no array views inside the parallel loop (numba then marks
     the kernel's arrays ``noalias`` and LLVM vectorises the contiguous loops without
@@ -356,18 +356,14 @@ def _vertex(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_fa
     # pass 3: residuals along the normal rho_k . n = dn_k - phi_k . q (the design row from
     # the chart coordinates) and h_k = dE_i/d(dn_k)
     om = stab[i]            # c_i omega, omega = 1 / (stencil size)
+    e = 0.0
     for s in range(ns):
         kw = q0 + s
         dd = _residual(sc, ch, s, p0 + s, kw, st_uv, st_sigma, q2, q3, q4, q5, q6, q7, q8)
         sc[ch, 4, s] = (2.0 * om * dd + st_w[2, kw] * g11 + st_w[3, kw] * g12
                         + st_w[4, kw] * g22)
-    if energy:      # the residual energy only when asked for (not in the step)
-        e = 0.0
-        for s in range(ns):
-            dd = _residual(sc, ch, s, p0 + s, q0 + s, st_uv, st_sigma, q2, q3, q4, q5, q6, q7,
-                           q8)
-            e += dd * dd
-        estab[i] = om * e
+        e += dd * dd
+    estab[i] = om * e
     v0, v1, v2, hs = _weighted_offsets(ns, sc, ch)
     # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
     vn = v0 * n0 + v1 * n1 + v2 * n2
@@ -411,7 +407,7 @@ def _store_lanes(a, c, i0, i1, i2, i3, v):
 @kernel(inline='always')
 def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
                   eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap,
-                  epsbar, estab, energy):
+                  epsbar, estab):
     """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
     (:mod:`.simd`): the same formulas, each operation on the four vertices in one vector.
 
@@ -536,14 +532,12 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
         vstore(sc, r0 + 4 * W + 4 * s,
                2.0 * om * dd + vload(st_w, 2 * KW + kw) * g11 + vload(st_w, 3 * KW + kw) * g12
                + vload(st_w, 4 * KW + kw) * g22)
-        if energy:
-            e = vfma(dd, dd, e)
-    if energy:
-        e = om * e
-        estab[i0] = lane(e, 0)
-        estab[i1] = lane(e, 1)
-        estab[i2] = lane(e, 2)
-        estab[i3] = lane(e, 3)
+        e = vfma(dd, dd, e)
+    e = om * e
+    estab[i0] = lane(e, 0)
+    estab[i1] = lane(e, 1)
+    estab[i2] = lane(e, 2)
+    estab[i3] = lane(e, 3)
     # V = sum_k h_k d_k and sum_k h_k
     v0 = splat(0.0)
     v1 = splat(0.0)
@@ -581,7 +575,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
 @kernel(parallel=True)
 def vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w, st_uv,
                 st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
-                scratch, contrib, cstress, kap, epsbar, estab, energy):
+                scratch, contrib, cstress, kap, epsbar, estab):
     """The vertex term for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
     that the faces take up, the residual energy estab (n,) and the stencil gradients
     contrib (3,K), in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib:
@@ -600,11 +594,11 @@ def vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w, s
         for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
             _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
                           vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                          ch, contrib, cstress, kap, epsbar, estab, energy)
+                          ch, contrib, cstress, kap, epsbar, estab)
         for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
             _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], s_wptr[u], x, st_idx, st_w, st_uv,
                     st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
-                    phi, scratch, ch, contrib, cstress, kap, epsbar, estab, energy)
+                    phi, scratch, ch, contrib, cstress, kap, epsbar, estab)
 
 
 def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
@@ -759,10 +753,9 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, f
 
 
 @kernel()
-def variational_stages(x, ops, mat, work, energy):
+def variational_stages(x, ops, mat, work):
     """Everything of the variational force but the final gather: face strains, the vertex
-    pass and the face gradients (work arrays); ``energy`` also fills the jet residual
-    energy estab."""
+    pass (with the jet residual energy estab) and the face gradients (work arrays)."""
     (faces, dinv, face_area, K, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
      ln_w) = ops
@@ -771,16 +764,16 @@ def variational_stages(x, ops, mat, work, energy):
     face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad)
     vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv,
                 ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
-                scratch, contrib, cstress, kap, epsbar, estab, energy)
+                scratch, contrib, cstress, kap, epsbar, estab)
     if phi != 0.0:
         face_coupling(x, faces, dinv, face_area, K, cstress, fgrad)
 
 
 @kernel()
-def variational_forces(x, ops, mat, work, force, energy=False):
-    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x
-    (and, with ``energy``, the jet residual energy in the work arrays)."""
-    variational_stages(x, ops, mat, work, energy)
+def variational_forces(x, ops, mat, work, force):
+    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x (and
+    the strains, curvatures and jet residual energy in the work arrays)."""
+    variational_stages(x, ops, mat, work)
     vf_ptr, vf_face, vf_corner = ops[15], ops[16], ops[17]
     gather_forces(vf_ptr, vf_face, vf_corner, work[5], ops[13], ops[14], work[6], force)
 

@@ -105,7 +105,7 @@ def run_steps(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
     variational = method == METHOD_VARIATIONAL
     for s in range(nsteps):
         if variational:
-            variational_stages(x, ops, mat, work, False)
+            variational_stages(x, ops, mat, work)
         else:
             covariant_forces(x, ops, cov, mat, cwork, force)
         if integrate(ops, work, variational, x, v, force, f_applied, mass, damp, pinned,

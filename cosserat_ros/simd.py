@@ -151,7 +151,7 @@ def _binary(instr):
 
 
 def _register_operator(pyop, impl):
-    @overload(pyop, inline='always')
+    @overload(pyop)
     def _ov(a, b):
         if a is f64x4 and b is f64x4:
             return lambda a, b: impl(a, b)
@@ -175,7 +175,7 @@ def _vneg(typingctx, a):
     return f64x4(f64x4), codegen
 
 
-@overload(operator.neg, inline='always')
+@overload(operator.neg)
 def _neg(a):
     if a is f64x4:
         return lambda a: _vneg(a)

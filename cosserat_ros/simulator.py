@@ -445,7 +445,7 @@ class ClothSimulator:
         """:meth:`energy` and :meth:`energy_densities` from one force evaluation."""
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
-        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f, True)
+        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
         eps, _, kap, epsbar, estab = self._work[:5]
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
