@@ -405,18 +405,20 @@ def _store_lanes(a, c, i0, i1, i2, i3, v):
 
 
 @kernel(inline='always')
-def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_face,
-                  eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress, kap,
-                  epsbar, estab):
+def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
+                  vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress,
+                  kap, epsbar, estab):
     """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
     (:mod:`.simd`): the same formulas, each operation on the four vertices in one vector.
 
     The group's stencils have the same size, and their entries are interleaved (lane
     order, :func:`lane_layout`): entry s of lane l sits at ``g_ptr[g] + 4 s + l``, s = 0
-    the centre. So the weights, chart coordinates and rest residuals of one entry of the
-    four vertices load as one vector, and the gradients store as one; only the positions
-    x[j] are gathered lane by lane. The stencil loops have no remainder and no horizontal
-    sums, and the per-vertex work (normal, resultants, adjoint) is shared four ways."""
+    the centre, and its weights and chart coordinates at ``g_wptr[g] + 4 s + l`` (a block
+    that groups with the same stencil templates share). So the weights, chart coordinates
+    and rest residuals of one entry of the four vertices load as one vector, and the
+    gradients store as one; only the positions x[j] are gathered lane by lane. The stencil
+    loops have no remainder and no horizontal sums, and the per-vertex work (normal,
+    resultants, adjoint) is shared four ways."""
     K = st_idx.shape[0]
     KW = st_w.shape[1]
     W = sc.shape[2]
@@ -476,7 +478,6 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     q7 = splat(0.0)
     q8 = splat(0.0)
     for s in range(ns):
-        k = p0 + 4 * s
         kw = q0 + 4 * s
         dn = (vload(sc, r0 + 4 * s) * n0 + vload(sc, r0 + W + 4 * s) * n1
               + vload(sc, r0 + 2 * W + 4 * s) * n2)

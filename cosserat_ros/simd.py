@@ -19,7 +19,8 @@ The type lowers to LLVM's ``<4 x double>``; values stay in registers. Operations
 
 Arithmetic is IEEE per lane, in the order written, with the one fast-math flag of
 ``compiled.STRICT`` (``contract``: a multiply feeding an add may become an FMA), so a lane
-computes what the scalar kernels compute when written the same way. These functions only work in compiled code.
+computes what the scalar kernels compute when written the same way. These functions only
+work in compiled code.
 """
 from __future__ import annotations
 

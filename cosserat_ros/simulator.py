@@ -118,10 +118,10 @@ class ClothSimulator:
         self._vf_K = np.ascontiguousarray(
             (self._K[mesh.vf_face, mesh.vf_corner] * vf_w[:, None, None]).reshape(-1, 4))
         self._stab = np.zeros(n)
-        self._st_sigma = np.zeros(len(self._jet.st_idx))
-        self._st_uv = np.ascontiguousarray(self._jet.st_x.T)
+        st_sigma = np.zeros(len(self._jet.st_idx))
+        st_uv = np.ascontiguousarray(self._jet.st_x.T)
         _forces.jet_normal_residuals(mesh.vertices, self._jet.st_ptr, self._jet.st_idx,
-                                     self._jet.st_w, self._st_uv, self._st_sigma)
+                                     self._jet.st_w, st_uv, st_sigma)
         frames = self._jet.frames
         src = np.repeat(np.arange(n), np.diff(self._jet.st_ptr))
         self._st_T = np.ascontiguousarray(
@@ -134,10 +134,10 @@ class ClothSimulator:
             self._jet.st_ptr, self._jet.template, LANES if simd else 1)
         ln_idx = np.empty_like(self._jet.st_idx)
         ln_idx[pos] = self._jet.st_idx
-        ln_sigma = np.empty_like(self._st_sigma)
-        ln_sigma[pos] = self._st_sigma
+        ln_sigma = np.empty_like(st_sigma)
+        ln_sigma[pos] = st_sigma
         ln_w = np.ascontiguousarray(self._jet.st_w[:, wsrc])
-        ln_uv = np.ascontiguousarray(self._st_uv[:, wsrc])
+        ln_uv = np.ascontiguousarray(st_uv[:, wsrc])
         # ops: the CSR stencils (st_ptr, st_idx, st_w) serve the covariant route; the
         # vertex pass reads ln_* (uv and sigma in the st_uv, st_sigma slots) and the
         # transposed stencil points into its entry order
