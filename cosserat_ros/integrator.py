@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .forces import _gather, covariant_forces, variational_forces, variational_stages
+from .forces import _gather, covariant_forces, variational_stages
 
 METHOD_VARIATIONAL = 0
 METHOD_COVARIANT = 1
@@ -86,30 +86,33 @@ def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinn
 
 
 @kernel()
-def internal_forces(x, method, ops, cov, mat, work, cwork, force):
-    """Dispatch to the selected discretisation of N^a|_a."""
-    if method == METHOD_VARIATIONAL:
-        variational_forces(x, ops, mat, work, force)
-    else:
-        covariant_forces(x, ops, cov, mat, cwork, force)
+def run_variational(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc,
+                    ops, mat, work, force):
+    """Advance ``nsteps`` steps with the variational force (the default) in compiled code.
+    Returns the number of completed steps; fewer than ``nsteps`` means step ``returned
+    value`` diverged (state then invalid). A step is two parallel passes: faces (strains,
+    membrane gradients) and vertices (jets, bending, stencil gradients) in one, then
+    gather + update. With a coupling (phi != 0) the vertex terms read the face strains and
+    the face coupling gradients read the vertex terms: four passes (faces, vertices,
+    faces, gather + update)."""
+    for s in range(nsteps):
+        variational_stages(x, ops, mat, work)
+        if integrate(ops, work, True, x, v, force, f_applied, mass, damp, pinned, gravity, dt,
+                     vmax2, acc) > 0:
+            return s
+    return nsteps
 
 
 @kernel()
-def run_steps(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc, method,
-              ops, cov, mat, work, cwork, force):
-    """Advance ``nsteps`` steps in compiled code. Returns the number of completed steps;
-    fewer than ``nsteps`` means step ``returned value`` diverged (state then invalid).
-    A variational step is three parallel passes (four with coupling, phi != 0): faces
-    (strains, membrane gradients), vertices (jets, bending, stencil gradients), [faces:
-    coupling gradients], and gather + update."""
-    variational = method == METHOD_VARIATIONAL
+def run_covariant(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc, ops,
+                  cov, mat, cwork, work, force):
+    """:func:`run_variational` with the seed's covariant-divergence force. A kernel of its
+    own (not a branch of one stepping kernel), so that a process that never selects it
+    never compiles it."""
     for s in range(nsteps):
-        if variational:
-            variational_stages(x, ops, mat, work)
-        else:
-            covariant_forces(x, ops, cov, mat, cwork, force)
-        if integrate(ops, work, variational, x, v, force, f_applied, mass, damp, pinned,
-                     gravity, dt, vmax2, acc) > 0:
+        covariant_forces(x, ops, cov, mat, cwork, force)
+        if integrate(ops, work, False, x, v, force, f_applied, mass, damp, pinned, gravity,
+                     dt, vmax2, acc) > 0:
             return s
     return nsteps
 

@@ -31,8 +31,8 @@ from .constants import (CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILI
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
                        Geometry)
-from .integrator import (internal_forces as _internal_forces, METHOD_COVARIANT,
-                         METHOD_VARIATIONAL, run_steps, stability_limit)
+from .integrator import (METHOD_COVARIANT, METHOD_VARIATIONAL, run_covariant,
+                         run_variational, stability_limit)
 from .material import Material
 from .mesh import ClothMesh
 from .simd import LANES
@@ -412,10 +412,13 @@ class ClothSimulator:
         if n == 0:
             return
         backup = (self._x.copy(), self._v.copy(), self._acc.copy())
-        done = run_steps(n, self._x, self._v, self._f_applied, self._mass, self._damp,
-                         self._pinned, self._gravity, self._dt, self._vmax ** 2, self._acc,
-                         self._method, self._ops, self._cov, self._mat, self._work,
-                         self._cwork, self._force)
+        args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
+                self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
+        if self._method == METHOD_VARIATIONAL:
+            done = run_variational(*args, self._mat, self._work, self._force)
+        else:
+            done = run_covariant(*args, self._cov, self._mat, self._cwork, self._work,
+                                 self._force)
         if done < n:
             self._x[:], self._v[:], self._acc[:] = backup
             crit = self.critical_dt()
@@ -437,8 +440,10 @@ class ClothSimulator:
         return out
 
     def _internal(self, x, out):
-        _internal_forces(x, self._method, self._ops, self._cov, self._mat, self._work,
-                         self._cwork, out)
+        if self._method == METHOD_VARIATIONAL:
+            _forces.variational_forces(x, self._ops, self._mat, self._work, out)
+        else:
+            _forces.covariant_forces(x, self._ops, self._cov, self._mat, self._cwork, out)
 
     # ------------------------------------------------------------------ energy
     def energy_and_densities(self):
