@@ -17,7 +17,7 @@
 Stale caches
 ------------
 numba keys a cached function by the time stamp of its own source file only. A kernel that
-calls kernels of another file (``run_steps`` in integrator.py calls forces.py) keeps its
+calls kernels of another file (``run_variational`` in integrator.py calls forces.py) keeps its
 cached machine code when only the callee's file changes, and an install that preserves
 time stamps (``setup.py install`` copies them) can leave such a stale step behind. On import,
 :func:`invalidate_stale_cache` therefore hashes every file with kernels and, when the hash
@@ -44,8 +44,8 @@ REDUCTION = frozenset({'contract', 'reassoc'})
 
 
 def kernel(**options):
-    """``numba.njit`` with the options above; ``options`` adds ``parallel``/``inline`` or
-    replaces ``fastmath`` (:data:`REDUCTION`)."""
+    """``numba.njit`` with the options above; ``options`` adds ``parallel``, ``inline``
+    (numba IR), ``forceinline`` (LLVM) or replaces ``fastmath`` (:data:`REDUCTION`)."""
     options['fastmath'] = set(options.get('fastmath', STRICT))
     return nb.njit(cache=True, error_model='numpy', **options)
 
