@@ -104,6 +104,34 @@ def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int =
             'bytes_per_vertex': _bytes(sim) / mesh.n_vertices}
 
 
+def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1) -> float:
+    """MuJoCo Euler's ms/step over ours at our dt, both on the scene, as the median over
+    ``pairs`` pairs of back-to-back batches (the order alternating): the load of a shared
+    machine drifts over minutes, which a ratio of two separate medians would take in.
+    nan if MuJoCo goes bad at our dt."""
+    sim = scene_simulator(n)
+    theirs = peer.stepper(n, 'Euler', sim.dt)
+    runners = (sim.step, theirs)
+    ks = []
+    for run in runners:
+        run(2)
+        t = time.perf_counter()
+        done = 0
+        while done == 0 or time.perf_counter() - t < 0.3:      # warm-up
+            run(5)
+            done += 5
+        ks.append(max(1, int(batch_s * done / (time.perf_counter() - t))))
+    ratios = []
+    for p in range(pairs):
+        per = [0.0, 0.0]
+        for j in ((0, 1) if p % 2 == 0 else (1, 0)):
+            t = time.perf_counter()
+            runners[j](ks[j])
+            per[j] = (time.perf_counter() - t) / ks[j]
+        ratios.append(per[1] / per[0])
+    return float('nan') if theirs.bad() else float(np.median(ratios))
+
+
 def settled_sag(n: int) -> float:
     """Our centre sag [m] after SETTLE_TIME s of damped settling."""
     sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY)
@@ -158,21 +186,24 @@ def part_peer(ours, sizes, sag_sizes):
     print('"at our dt": stepping at our dt (0.9 of our critical dt); "own stable dt": the '
           'largest dt of a 1.25x ladder that stays bounded from noise (400 steps for Euler, '
           '60 for `discrete`, which is tried from 1/60 s down). "x ours" = its ms/step / '
-          'our ms/step at the same dt.\n')
-    _table(('N', 'engine', 'ms/step at our dt', 'x ours', 'own stable dt [s]',
-            'ms/step there', 'RTF there'))
+          'our ms/step (part 1) at the same dt; "paired" measures that ratio again in '
+          'alternating back-to-back batches (median of 9 pairs), which a shared machine\'s '
+          'drifting load cannot skew.\n')
+    _table(('N', 'engine', 'ms/step at our dt', 'x ours', 'x ours, paired',
+            'own stable dt [s]', 'ms/step there', 'RTF there'))
     for n in sizes:
         r = ours[n]
-        print(f"| {n} | ours (explicit, 2 threads) | {r['ms']:.3f} | 1 | "
+        print(f"| {n} | ours (explicit, 2 threads) | {r['ms']:.3f} | 1 | 1 | "
               f"{r['crit_dt']:.2e} | {r['ms']:.3f} | {r['crit_dt'] / (r['ms'] * 1e-3):.2f} |",
               flush=True)
         for integ, start in (('Euler', r['crit_dt'] / 0.8 * 1.25 ** 2), ('discrete', 1 / 60)):
-            same = (peer.ms_per_step(n, integ, r['dt'])
-                    if peer.stable(n, integ, r['dt']) else float('nan'))
+            stable = peer.stable(n, integ, r['dt'])
+            same = peer.ms_per_step(n, integ, r['dt']) if stable else float('nan')
+            paired = paired_ratio(n) if stable and integ == 'Euler' else float('nan')
             dt = peer.largest_stable_dt(n, integ, start)
             there = peer.ms_per_step(n, integ, dt) if dt == dt else float('nan')
             print(f"| {n} | MuJoCo {integ} | {_f(same, '.3f')} | {_f(same / r['ms'], '.2f')} "
-                  f"| {_f(dt, '.2e')} | {_f(there, '.3f')} | "
+                  f"| {_f(paired, '.2f')} | {_f(dt, '.2e')} | {_f(there, '.3f')} | "
                   f"{_f(dt / (there * 1e-3), '.2f')} |", flush=True)
     if not sag_sizes:
         return

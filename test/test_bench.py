@@ -36,3 +36,20 @@ def test_both_engines_sag_alike():
     assert math.isfinite(theirs)
     assert abs(ours - theirs) < 0.01 * theirs
     assert 0.03 < ours < 0.04
+
+
+def test_paired_ratio_is_measured():
+    pytest.importorskip('mujoco')
+    r = bench.paired_ratio(6, pairs=3, batch_s=0.01)
+    assert math.isfinite(r) and r > 0
+
+
+def test_shared_peer_model_takes_each_runs_settings():
+    mujoco = pytest.importorskip('mujoco')
+    fresh = mujoco.MjModel.from_xml_string(peer.scene_xml(6, 'discrete', 3e-4))
+    peer.build(6, 'Euler', 1e-4, damping_rate=5.0)          # a run with other settings
+    model, data = peer.build(6, 'discrete', 3e-4)
+    assert model.opt.timestep == fresh.opt.timestep == 3e-4
+    assert model.opt.integrator == fresh.opt.integrator == mujoco.mjtIntegrator.mjINT_DISCRETE
+    assert (model.dof_damping == fresh.dof_damping).all() and not model.dof_damping.any()
+    assert not data.qvel.any() and data.time == 0.0
