@@ -20,7 +20,8 @@ discrete divergence, gathered per vertex through the transposed stencils. With
 
     dE/dx_j = sum_{t ni j} [F_t S_t Dinv_t^T]_corner + sum_{i: j in stencil(i)} dE_i/dx_j
 
-with the triangle "stress times area" ``S_t = area_t N*_t + sum_{i in t} area_t/3 K Theta kap_i K^T``.
+with the triangle "stress times area"
+``S_t = area_t N*_t + sum_{i in t} area_t/3 K Theta kap_i K^T``.
 The vertex term depends on the stencil offsets ``d_k = x_j - x_i`` only through the normal
 components ``dn_k = d_k . n`` (``b_ab = sum_k W_k,ab dn_k``) and the normal
 ``n = a_1 x a_2 / |a_1 x a_2|`` (``a_a = sum_k W_k,a d_k``), so with

@@ -227,7 +227,8 @@ def main(argv=None):
            f'Undamped: the total energy stays within {100 * drift:.3f}% of the initial '
            f'elastic energy over {t[-1]:.1f} s. Damped (rho = 0.3): it decays back towards '
            f'the rest shape, the largest displacement falling from 2 cm to {resid:.2e} m in '
-           f'{t_d[-1]:.1f} s (seed Sec. 6.5, Fig. 6; the test suite checks the full return).', '', '![energy over time](validation_energy.png)', '']
+           f'{t_d[-1]:.1f} s (seed Sec. 6.5, Fig. 6; the test suite checks the full return).',
+           '', '![energy over time](validation_energy.png)', '']
     fig, axs = plt.subplots(1, 2, figsize=(10, 3.8))
     for ax, (label, (tt, ee, _)) in zip(axs, en.items()):
         for key in ('kinetic', 'elastic', 'total', 'dissipated'):
