@@ -63,6 +63,19 @@ def scene_simulator(n: int, damping: float = 0.0) -> ClothSimulator:
     return sim
 
 
+def _batch_size(run, warmup_s: float, batch_s: float) -> int:
+    """Steps per timed batch of about ``batch_s`` seconds for ``run(k)`` (k steps), after
+    running it for ``warmup_s``: warm up for half a second, not a few steps (with a 5-step
+    warm-up one full run reported 0.103 ms at N = 20 right after a cold compile, where
+    reruns give 0.06 ms)."""
+    t = time.perf_counter()
+    done = 0
+    while done == 0 or time.perf_counter() - t < warmup_s:
+        run(5)
+        done += 5
+    return max(1, int(batch_s * done / (time.perf_counter() - t)))
+
+
 def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int = 7,
           warmup_s: float = 0.5):
     """Our step cost on the scene (see the module docstring, part 1)."""
@@ -75,15 +88,7 @@ def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int =
     first = time.perf_counter() - t0
     crit = sim.critical_dt()
     sim.dt = DT_FRACTION * crit
-    # warm up for half a second, not a few steps: with a 5-step warm-up one full run
-    # reported 0.103 ms at N = 20 right after a cold compile, where reruns give 0.06 ms
-    t = time.perf_counter()
-    done = 0
-    while done == 0 or time.perf_counter() - t < warmup_s:
-        sim.step(5)
-        done += 5
-    per = (time.perf_counter() - t) / done
-    k = max(1, int(batch_s / per))
+    k = _batch_size(sim.step, warmup_s, batch_s)
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
@@ -112,15 +117,7 @@ def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1) -> float:
     sim = scene_simulator(n)
     theirs = peer.stepper(n, 'Euler', sim.dt)
     runners = (sim.step, theirs)
-    ks = []
-    for run in runners:
-        run(2)
-        t = time.perf_counter()
-        done = 0
-        while done == 0 or time.perf_counter() - t < 0.3:      # warm-up
-            run(5)
-            done += 5
-        ks.append(max(1, int(batch_s * done / (time.perf_counter() - t))))
+    ks = [_batch_size(run, 0.3, batch_s) for run in runners]
     ratios = []
     for p in range(pairs):
         per = [0.0, 0.0]

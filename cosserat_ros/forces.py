@@ -614,7 +614,7 @@ def _vertex_chunk(ch, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, s
                   nface, fgrad):
     """Work item ``ch`` of :func:`vertex_pass`: its share of the faces, lane groups and
     single vertices. A function of its own, so that numba's parallel passes see a one-call
-    loop body (the cold compile of the step drops from 85 to 44 s on a slow machine), and
+    loop body (cold start 44 instead of 51 s on a slow machine), and
     ``forceinline`` (LLVM ``alwaysinline``) so that the inlined body still gets the
     parallel loop's ``noalias`` arrays: a plain call was 5-10% slower."""
     nch = scratch.shape[0]

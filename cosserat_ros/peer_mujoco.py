@@ -87,7 +87,8 @@ def _compiled(n: int):
 def build(n: int, integrator: str, dt: float, damping_rate: float = 0.0):
     """(model, data) of the scene, fresh data from rest; ``damping_rate`` gamma [1/s] adds
     dof damping gamma m. The model is shared between runs of the same n (see
-    :func:`_compiled`); every call sets all the fields a run depends on."""
+    :func:`_compiled`); every call sets all the fields a run depends on, so a run must be
+    over before the next build of the same n."""
     import mujoco
     mujoco.set_mju_user_warning(_count_warning)
     model = _compiled(n)
@@ -151,19 +152,18 @@ def ms_per_step(n: int, integrator: str, dt: float, batch_s: float = 0.2,
                 repeats: int = 5) -> float:
     """Median wall time of one step [ms] over ``repeats`` batches (the sheet falling from
     rest under gravity, as our own benchmark), nan if the run goes bad."""
-    import mujoco
-    model, data = build(n, integrator, dt)
-    mujoco.mj_step(model, data, nstep=2)
+    run = stepper(n, integrator, dt)
+    run(2)
     t = time.perf_counter()
-    mujoco.mj_step(model, data, nstep=3)
+    run(3)
     per = (time.perf_counter() - t) / 3
     k = max(1, int(batch_s / per))
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
-        mujoco.mj_step(model, data, nstep=k)
+        run(k)
         times.append((time.perf_counter() - t) / k)
-    if _bad(model, data):
+    if run.bad():
         return float('nan')
     return 1e3 * float(np.median(times))
 
