@@ -96,7 +96,12 @@ def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     out = tmp_path / 'interrupted'
     p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '150'],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4)
+    # interrupt once it is recording (a fixed 4 s sleep raced the recorder's start-up and
+    # discovery on a slow host: SIGINT came before any message, so no bag was written)
+    end = time.monotonic() + 60
+    while time.monotonic() < end and not (out / 'interrupted.mcap').exists():
+        time.sleep(0.1)
+    time.sleep(1.0)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=30)
     assert p.returncode == 0 and 'Traceback' not in err
