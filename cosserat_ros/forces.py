@@ -581,64 +581,49 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     vstore(contrib, 2 * K + b, c0w * j12 + c1w * j22 - hs * n2)
 
 
-@kernel(parallel=True)
-def vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w, st_uv,
-                st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
-                scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                nface, fgrad):
-    """The vertex term for every vertex: kap, epsbar, the coupling stress Theta kap (n,3)
-    that the faces take up, the residual energy estab (n,) and the stencil gradients
-    contrib (3,K), in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib:
-    entries; st_w, st_uv: weight blocks). The lane groups run four vertices at a time
-    (:func:`_vertex_lanes`), the few single vertices left (stencil sizes that do not fill a
-    group) one at a time (:func:`_vertex`). Parallel over ``scratch.shape[0]`` chunks, each
-    with its own scratch row (no allocation, no shared writes).
-
-    The first ``nface`` faces' membrane terms (:func:`_face_membrane`) run in the same
-    chunks, split evenly: one parallel region fewer per step. Only valid when the vertex
-    terms do not read eps (phi = 0); otherwise pass ``nface = 0`` after
-    :func:`face_membrane`."""
-    for ch in nb.prange(scratch.shape[0]):
-        # int64: the parallel loop's index is unsigned in lowering, signed in typing, and
-        # each would compile its own _vertex_chunk
-        _vertex_chunk(np.int64(ch), x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
-                      st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv,
-                      rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab, faces,
-                      dinv, face_area, zeta, nface, fgrad)
-
-
 @kernel(forceinline=True)
-def _vertex_chunk(ch, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w, st_uv,
-                  st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
-                  scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                  nface, fgrad):
-    """Work item ``ch`` of :func:`vertex_pass`: its share of the faces, lane groups and
-    single vertices. A function of its own, so that numba's parallel passes see a one-call
-    loop body (cold start 44 instead of 51 s on a slow machine), and
-    ``forceinline`` (LLVM ``alwaysinline``) so that the inlined body still gets the
-    parallel loop's ``noalias`` arrays: a plain call was 5-10% slower."""
-    nch = scratch.shape[0]
-    # the chunk sizes follow from the scratch the caller allocated (not from a module
-    # constant, which numba's cache would freeze into the compiled code)
+def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
+                  st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
+                  phi, scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area,
+                  zeta, fc_ptr, fc_face, with_faces, fgrad):
+    """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_parts): the vertex
+    term for its lane groups (four vertices at a time, :func:`_vertex_lanes`) and its
+    single vertices (stencil sizes that do not fill a group, :func:`_vertex`): kap,
+    epsbar, the coupling stress Theta kap (n,3) that the faces take up, the residual
+    energy estab (n,) and the stencil gradients contrib (3,K) in the lane layout of
+    :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w, st_uv: weight blocks);
+    ``nch`` chunks split the mesh; ``scratch[row]`` (5, S) is the calling thread's own (no
+    allocation, no shared writes; one row per thread stays in L1).
+
+    With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
+    ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
+    step. Only valid when the vertex terms do not read eps (phi = 0).
+
+    ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
+    gets that body's ``noalias`` arrays; a plain call was 5-10% slower."""
+    # the chunk sizes follow from the caller's nch (not from a module constant, which
+    # numba's cache would freeze into the compiled code); ClothSimulator._schedule repeats
+    # this split. (Spreading the groups and singles evenly over the chunks ran the pass
+    # 3-9% slower at N = 20 / 40: the few singles then leave the first chunks, i.e. the
+    # calling thread, which starts before the woken worker.)
     ng = g_vert.shape[0]
-    gchunk = (ng + nch - 1) // nch
     nsv = s_vert.shape[0]
-    schunk = (nsv + nch - 1) // nch
-    fchunk = (nface + nch - 1) // nch
-    for t in range(ch * fchunk, min(nface, (ch + 1) * fchunk)):
-        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad)
+    for q in range(fc_ptr[ch], fc_ptr[ch + 1] if with_faces else fc_ptr[ch]):
+        _face_membrane(fc_face[q], x, faces, dinv, face_area, zeta, eps, fgrad)
+    gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
         _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                      ch, contrib, cstress, kap, epsbar, estab)
+                      row, contrib, cstress, kap, epsbar, estab)
+    schunk = (nsv + nch - 1) // nch
     for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
         _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], s_wptr[u], x, st_idx, st_w, st_uv,
                 st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
-                phi, scratch, ch, contrib, cstress, kap, epsbar, estab)
+                phi, scratch, row, contrib, cstress, kap, epsbar, estab)
 
 
 def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
-    """Order of the stencil entries and of the weights for :func:`vertex_pass`.
+    """Order of the stencil entries and of the weights for the vertex pass (:func:`_vertex_chunk`).
 
     Entries (indices, rest residuals, gradients): vertices with the same stencil size form
     groups of ``lanes`` (sorted by stencil template, then vertex, within a size; groups in
@@ -786,36 +771,6 @@ def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, f
     for j in nb.prange(n):
         force[j, 0], force[j, 1], force[j, 2] = _gather(j, vf_ptr, vf_face, vf_corner, fgrad,
                                                         tr_ptr, tr_slot, contrib)
-
-
-@kernel()
-def variational_stages(x, ops, mat, work):
-    """Everything of the variational force but the final gather: face strains, the vertex
-    pass (with the jet residual energy estab) and the face gradients (work arrays)."""
-    (faces, dinv, face_area, K, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
-     _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
-     ln_w) = ops
-    zeta, xi, phi = mat[0], mat[1], mat[2]
-    eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
-    nface = faces.shape[0]
-    if phi != 0.0:          # the vertex terms read eps: faces first, in their own pass
-        face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad)
-        nface = 0
-    vertex_pass(x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv,
-                ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi,
-                scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                nface, fgrad)
-    if phi != 0.0:
-        face_coupling(x, faces, dinv, face_area, K, cstress, fgrad)
-
-
-@kernel()
-def variational_forces(x, ops, mat, work, force):
-    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x (and
-    the strains, curvatures and jet residual energy in the work arrays)."""
-    variational_stages(x, ops, mat, work)
-    vf_ptr, vf_face, vf_corner = ops[15], ops[16], ops[17]
-    gather_forces(vf_ptr, vf_face, vf_corner, work[5], ops[13], ops[14], work[6], force)
 
 
 @kernel(parallel=True)

@@ -20,7 +20,8 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .forces import _gather, covariant_forces, variational_stages
+from .forces import (_gather, _vertex_chunk, covariant_forces, face_coupling,
+                     face_membrane, gather_forces)
 
 METHOD_VARIATIONAL = 0
 METHOD_COVARIANT = 1
@@ -52,18 +53,141 @@ def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, g0, g1, g2, vmax2):
 
 
 @kernel(parallel=True)
-def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinned, gravity,
-              dt, vmax2, acc):
-    """One symplectic Euler update in place, one pass over the vertices; returns the number
-    of vertices that went bad (non-finite or faster than sqrt(vmax2)). With ``gather`` the
-    last stage of the variational force (the gather of corner and stencil gradients) runs
-    in the same pass and fills ``force``; otherwise ``force`` is read as given."""
+def vertex_pass(x, ops, mat, work, with_faces):
+    """The vertex pass (:func:`forces._vertex_chunk`; the faces too if ``with_faces``) over
+    all chunks in parallel, each with its own scratch row."""
+    (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
+     _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+     ln_w, tile_ch, fc_ptr, fc_face, _, _, _) = ops
+    zeta, xi, phi = mat[0], mat[1], mat[2]
+    eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
+    nch = tile_ch[tile_ch.shape[0] - 1]
+    for c in nb.prange(nch):
+        # int64: the parallel loop's index is unsigned in lowering, signed in typing, and
+        # each would compile its own _vertex_chunk
+        _vertex_chunk(np.int64(c), nch, np.int64(c), x, g_vert, g_ptr,
+                      g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv, ln_sigma, stab,
+                      vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
+                      contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
+                      fc_ptr, fc_face, with_faces, fgrad)
+
+
+@kernel()
+def _gather_update(q0, q1, gl_vert, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
+                   contrib, x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2):
+    """Gather (force = -dE/dx) and update (Eq. 29) the vertices ``gl_vert[q0:q1]`` one after
+    the other; returns (external work, dissipation, bad vertices). A plain call from
+    :func:`vertex_parts`, not inlined: inlined, its code slowed the vertex code around it
+    by ~5% (register pressure)."""
+    w = 0.0
+    d = 0.0
+    b = 0
+    for q in range(q0, q1):
+        i = gl_vert[q]
+        f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib)
+        force[i, 0] = f0
+        force[i, 1] = f1
+        force[i, 2] = f2
+        if not pinned[i]:
+            dw, dd, db = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, gravity[0],
+                                 gravity[1], gravity[2], vmax2)
+            w += dw
+            d += dd
+            b += db
+    return w, d, b
+
+
+@kernel(parallel=True)
+def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gravity, dt,
+                 vmax2, pacc):
+    """The tiled step's first pass (phi = 0): the vertex pass with the faces
+    (:func:`forces._vertex_chunk`), one part of the mesh per thread, and the gather and
+    update (Eq. 29) of every vertex whose contributors all lie in the thread's part.
+
+    Part p (ops[32]: its tiles) runs its chunks in order; after the last chunk of a tile
+    (ops[27]: the tiles' chunk ranges) it gathers and updates the vertices the tile
+    completed (ops[30], ops[31]: those whose last contributor is in the tile). Their
+    stencil and corner gradients are still in this core's cache, and updating x[j] there
+    is safe: the vertices and faces that read x[j] are exactly those that contribute to
+    it, all done, and all in this part. The vertices on the seam between parts (the last
+    range of ops[30]) are left for :func:`integrate`. Writes (external work, dissipation,
+    bad vertices) of part p to pacc[p]."""
+    (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
+     tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr,
+     s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile) = ops
+    zeta, xi, phi = mat[0], mat[1], mat[2]
+    eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
+    nch = tile_ch[tile_ch.shape[0] - 1]
+    for p in nb.prange(part_tile.shape[0] - 1):
+        w = 0.0
+        d = 0.0
+        b = 0
+        t = part_tile[p]
+        row = tile_ch[t]        # the scratch row of the part's first chunk
+        # one loop over the part's chunks (not tiles, then chunks: the deeper nest cost the
+        # vertex code ~5%); a tile's vertices are gathered after its last chunk
+        for ch in range(tile_ch[t], tile_ch[part_tile[p + 1]]):
+            _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+                          ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area,
+                          ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
+                          faces, dinv, face_area, zeta, fc_ptr, fc_face, True, fgrad)
+            if ch + 1 == tile_ch[t + 1]:
+                dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_face,
+                                            vf_corner, fgrad, tr_ptr, tr_slot, contrib, x, v,
+                                            force, f_applied, mass, damp, pinned, gravity, dt,
+                                            vmax2)
+                w += dw
+                d += dd
+                b += db
+                t += 1
+        pacc[p, 0] = w
+        pacc[p, 1] = d
+        pacc[p, 2] = b
+
+
+@kernel()
+def variational_stages(x, ops, mat, work):
+    """Everything of the variational force but the final gather: face strains, the vertex
+    pass (with the jet residual energy estab) and the face gradients (work arrays)."""
+    faces, dinv, face_area, K = ops[0], ops[1], ops[2], ops[3]
+    zeta, phi = mat[0], mat[2]
+    eps, cstress, fgrad = work[0], work[1], work[5]
+    if phi != 0.0:          # the vertex terms read eps: faces first, in their own pass
+        face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad)
+    vertex_pass(x, ops, mat, work, phi == 0.0)
+    if phi != 0.0:
+        face_coupling(x, faces, dinv, face_area, K, cstress, fgrad)
+
+
+@kernel()
+def variational_forces(x, ops, mat, work, force):
+    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x (and
+    the strains, curvatures and jet residual energy in the work arrays)."""
+    variational_stages(x, ops, mat, work)
+    gather_forces(ops[15], ops[16], ops[17], work[5], ops[13], ops[14], work[6], force)
+
+
+@kernel(parallel=True)
+def integrate(ops, work_arrays, gather, q0, q1, x, v, force, f_applied, mass, damp, pinned,
+              gravity, dt, vmax2, acc):
+    """One symplectic Euler update in place of the vertices ``q0 <= j < q1`` (``q0 < 0``:
+    of the seam of the tiled step, ``gl_vert[gl_ptr[-2]:]`` of ops[30], ops[31]); returns
+    the number of them that went bad (non-finite or faster than sqrt(vmax2)). With
+    ``gather`` the last stage of the variational force (the gather of corner and stencil
+    gradients) runs in the same pass and fills ``force``; otherwise ``force`` is read as
+    given."""
     tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
+    gl_ptr, gl_vert = ops[30], ops[31]
+    seam = q0 < 0
+    if seam:
+        q0 = gl_ptr[gl_ptr.shape[0] - 2]
+        q1 = gl_ptr[gl_ptr.shape[0] - 1]
     fgrad, contrib = work_arrays[5], work_arrays[6]
     work = 0.0
     diss = 0.0
     bad = 0
-    for i in nb.prange(x.shape[0]):
+    for q in nb.prange(q1 - q0):
+        i = gl_vert[q0 + np.int64(q)] if seam else q0 + np.int64(q)
         if gather:
             f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
                                  contrib)
@@ -90,15 +214,42 @@ def run_variational(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vm
                     ops, mat, work, force):
     """Advance ``nsteps`` steps with the variational force (the default) in compiled code.
     Returns the number of completed steps; fewer than ``nsteps`` means step ``returned
-    value`` diverged (state then invalid). A step is two parallel passes: faces (strains,
-    membrane gradients) and vertices (jets, bending, stencil gradients) in one, then
-    gather + update. With a coupling (phi != 0) the vertex terms read the face strains and
-    the face coupling gradients read the vertex terms: four passes (faces, vertices,
-    faces, gather + update)."""
+    value`` diverged (state then invalid).
+
+    A step is two parallel passes (phi = 0): faces (strains, membrane gradients) and
+    vertices (jets, bending, stencil gradients) in one, then gather + update. With a
+    coupling (phi != 0) the vertex terms read the face strains and the face coupling
+    gradients read the vertex terms: four passes (faces, vertices, faces, gather +
+    update). Large meshes step with :func:`run_tiled` instead."""
+    n = x.shape[0]
     for s in range(nsteps):
         variational_stages(x, ops, mat, work)
-        if integrate(ops, work, True, x, v, force, f_applied, mass, damp, pinned, gravity, dt,
-                     vmax2, acc) > 0:
+        if integrate(ops, work, True, 0, n, x, v, force, f_applied, mass, damp, pinned,
+                     gravity, dt, vmax2, acc) > 0:
+            return s
+    return nsteps
+
+
+@kernel()
+def run_tiled(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, acc, ops, mat,
+              work, force):
+    """:func:`run_variational` for a large mesh without coupling (phi = 0): per step
+    :func:`vertex_parts` (each thread its part, tile by tile, gathering and updating a
+    tile's vertices while their gradients are in cache), then gather + update of the seam
+    vertices between the parts. The same forces and update, vertex for vertex, in the same
+    arithmetic order, so the same trajectory to the bit. A kernel of its own: a small
+    mesh never compiles it."""
+    pacc = np.zeros((ops[32].shape[0] - 1, 3))
+    for s in range(nsteps):
+        vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gravity, dt,
+                     vmax2, pacc)
+        bad = integrate(ops, work, True, -1, -1, x, v, force, f_applied, mass, damp, pinned,
+                        gravity, dt, vmax2, acc)
+        for p in range(pacc.shape[0]):
+            acc[0] += pacc[p, 0]
+            acc[1] += pacc[p, 1]
+            bad += int(pacc[p, 2])
+        if bad > 0:
             return s
     return nsteps
 
@@ -109,10 +260,11 @@ def run_covariant(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax
     """:func:`run_variational` with the seed's covariant-divergence force. A kernel of its
     own (not a branch of one stepping kernel), so that a process that never selects it
     never compiles it."""
+    n = x.shape[0]
     for s in range(nsteps):
         covariant_forces(x, ops, cov, mat, cwork, force)
-        if integrate(ops, work, False, x, v, force, f_applied, mass, damp, pinned, gravity,
-                     dt, vmax2, acc) > 0:
+        if integrate(ops, work, False, 0, n, x, v, force, f_applied, mass, damp, pinned,
+                     gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps
 

@@ -23,16 +23,18 @@ import math
 from typing import Dict, Optional
 import warnings
 
+import numba
 import numpy as np
 
 from . import forces as _forces
 from .constants import (CRITICAL_DT_SAFETY, DIVERGENCE_SPEED_FACTOR, JET_STABILIZATION,
-                        VERTEX_CHUNK)
+                        TILE_VERTICES, VERTEX_CHUNK, FUSE_MIN_VERTICES)
 from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
                        Geometry)
 from .integrator import (METHOD_COVARIANT, METHOD_VARIATIONAL, run_covariant,
-                         run_variational, stability_limit)
+                         run_tiled, run_variational, stability_limit,
+                         variational_forces)
 from .material import Material
 from .mesh import ClothMesh
 from .simd import LANES
@@ -149,11 +151,19 @@ class ClothSimulator:
                      g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
         nch = -(-n // VERTEX_CHUNK)
-        smax = LANES * int(np.diff(self._jet.st_ptr).max())
-        # eps, cstress, kap, epsbar, estab, fgrad, contrib, per-chunk scratch
+        # large meshes without coupling step tile by tile (integrator.run_tiled)
+        self._tiled = n >= FUSE_MIN_VERTICES
+        self._ops += self._schedule(nch, TILE_VERTICES, max(1, numba.get_num_threads()),
+                                    self._tiled)
+        # scratch slots per row: the largest lane group's stencil, padded by a cache line
+        # so that rows in use by two threads never share one (false sharing)
+        smax = -(-LANES * int(np.diff(self._jet.st_ptr).max()) // 8) * 8 + 8
+        # eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch (a row per chunk; the
+        # tiled step uses the row of each part's first chunk)
         self._work = (np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
-                      np.zeros((3, len(self._jet.st_idx))), np.zeros((nch, 5, smax)))
+                      np.zeros((3, len(self._jet.st_idx))),
+                      np.zeros((nch, 5, smax)))
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -174,6 +184,55 @@ class ClothSimulator:
             self._warn_if_unstable(self._dt)
 
     # ------------------------------------------------------------------ set-up helpers
+    def _schedule(self, nch: int, tile_vertices: int, parts: int, tiled: bool = True):
+        """The step's work plan (integrator.vertex_parts), ops[27:33]:
+
+        * ``tile_ch`` (T+1,): chunk boundaries of the tiles (a tile is a run of
+          ``tile_vertices / VERTEX_CHUNK`` chunks; no tile spans two parts);
+        * ``fc_ptr`` (nch+1,), ``fc_face`` (m,): the faces of each chunk (``tiled``: a face
+          goes with the chunk of its latest corner; otherwise equal runs of faces, which
+          measured 2-6% faster on small meshes);
+        * ``gl_ptr`` (T+2,), ``gl_vert`` (n,): the vertices each tile completes (those whose
+          contributors, the vertices whose stencils hold them and their incident faces,
+          all lie in the tile's part and the last of them in the tile), then the seam (the
+          rest), a permutation of all vertices;
+        * ``part_tile`` (parts+1,): the tiles of each part (equal runs of chunks; one part
+          per thread).
+        """
+        n, faces = self.mesh.n_vertices, self.mesh.faces
+        g_vert, s_vert = self._ops[19], self._ops[22]
+        chunk = np.empty(n, dtype=np.int64)
+        # the split of forces._vertex_chunk: groups, then single vertices, in equal runs
+        if len(g_vert):
+            chunk[g_vert] = (np.arange(len(g_vert)) // -(-len(g_vert) // nch))[:, None]
+        if len(s_vert):
+            chunk[s_vert] = np.arange(len(s_vert)) // -(-len(s_vert) // nch)
+        face_chunk = (chunk[faces].max(axis=1) if tiled
+                      else np.arange(len(faces)) // -(-len(faces) // nch))
+        fc_face = np.argsort(face_chunk, kind='stable').astype(np.int64)
+        fc_ptr = np.zeros(nch + 1, dtype=np.int64)
+        np.cumsum(np.bincount(face_chunk, minlength=nch), out=fc_ptr[1:])
+        # first and last contributing chunk of every vertex
+        src = np.repeat(chunk, np.diff(self._jet.st_ptr))
+        first, last = chunk.copy(), chunk.copy()
+        for idx, c in ((self._jet.st_idx, src), (faces.ravel(), np.repeat(face_chunk, 3))):
+            np.minimum.at(first, idx, c)
+            np.maximum.at(last, idx, c)
+        part_ch = np.linspace(0, nch, parts + 1).round().astype(np.int64)
+        per_tile = max(1, tile_vertices // VERTEX_CHUNK)
+        starts = [np.arange(part_ch[p], part_ch[p + 1], per_tile) for p in range(parts)]
+        part_tile = np.zeros(parts + 1, dtype=np.int64)
+        np.cumsum([len(t) for t in starts], out=part_tile[1:])
+        tile_ch = np.append(np.concatenate(starts), nch).astype(np.int64)
+        ntile = len(tile_ch) - 1
+        inner = (np.searchsorted(part_ch, first, 'right')
+                 == np.searchsorted(part_ch, last, 'right'))
+        key = np.where(inner, np.searchsorted(tile_ch, last, 'right') - 1, ntile)
+        gl_vert = np.argsort(key, kind='stable').astype(np.int64)
+        gl_ptr = np.zeros(ntile + 2, dtype=np.int64)
+        np.cumsum(np.bincount(key, minlength=ntile + 1), out=gl_ptr[1:])
+        return tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile
+
     def _rest(self, curvature: str) -> Geometry:
         if curvature not in self._rest_geometry:
             self._rest_geometry[curvature] = compute_geometry(self.mesh.vertices, self.mesh,
@@ -415,7 +474,8 @@ class ClothSimulator:
         args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
                 self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
         if self._method == METHOD_VARIATIONAL:
-            done = run_variational(*args, self._mat, self._work, self._force)
+            run = run_tiled if self._tiled and self._mat[2] == 0.0 else run_variational
+            done = run(*args, self._mat, self._work, self._force)
         else:
             done = run_covariant(*args, self._cov, self._mat, self._cwork, self._work,
                                  self._force)
@@ -441,7 +501,7 @@ class ClothSimulator:
 
     def _internal(self, x, out):
         if self._method == METHOD_VARIATIONAL:
-            _forces.variational_forces(x, self._ops, self._mat, self._work, out)
+            variational_forces(x, self._ops, self._mat, self._work, out)
         else:
             _forces.covariant_forces(x, self._ops, self._cov, self._mat, self._cwork, out)
 
@@ -450,7 +510,7 @@ class ClothSimulator:
         """:meth:`energy` and :meth:`energy_densities` from one force evaluation."""
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
-        _forces.variational_forces(self._x, self._ops, self._mat, self._work, f)
+        variational_forces(self._x, self._ops, self._mat, self._work, f)
         eps, _, kap, epsbar, estab = self._work[:5]
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
