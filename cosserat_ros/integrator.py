@@ -28,9 +28,12 @@ METHOD_COVARIANT = 1
 
 
 @kernel(inline='always')
-def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, g0, g1, g2, vmax2):
+def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, g0, g1, g2, vmax2):
     """Eq. 29 for vertex i with internal force f: returns (external work, dissipation,
-    1 if the vertex went bad (non-finite or faster than sqrt(vmax2)) else 0)."""
+    1 if the vertex went bad (non-finite or faster than sqrt(vmax2)) else 0); a pinned
+    vertex stays put: (0, 0, 0)."""
+    if pinned[i]:
+        return 0.0, 0.0, 0
     m = mass[i]
     c = damp[i]
     vo0 = v[i, 0]
@@ -88,12 +91,11 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, t
         force[i, 0] = f0
         force[i, 1] = f1
         force[i, 2] = f2
-        if not pinned[i]:
-            dw, dd, db = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, gravity[0],
-                                 gravity[1], gravity[2], vmax2)
-            w += dw
-            d += dd
-            b += db
+        dw, dd, db = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt,
+                             gravity[0], gravity[1], gravity[2], vmax2)
+        w += dw
+        d += dd
+        b += db
     return w, d, b
 
 
@@ -198,12 +200,11 @@ def integrate(ops, work_arrays, gather, q0, q1, x, v, force, f_applied, mass, da
             f0 = force[i, 0]
             f1 = force[i, 1]
             f2 = force[i, 2]
-        if not pinned[i]:
-            w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, dt, gravity[0],
-                              gravity[1], gravity[2], vmax2)
-            work += w
-            diss += d
-            bad += b
+        w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, gravity[0],
+                          gravity[1], gravity[2], vmax2)
+        work += w
+        diss += d
+        bad += b
     acc[0] += work
     acc[1] += diss
     return bad
