@@ -586,14 +586,14 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
                   st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
                   phi, scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area,
                   zeta, fc_ptr, fc_face, with_faces, fgrad):
-    """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_parts): the vertex
-    term for its lane groups (four vertices at a time, :func:`_vertex_lanes`) and its
-    single vertices (stencil sizes that do not fill a group, :func:`_vertex`): kap,
-    epsbar, the coupling stress Theta kap (n,3) that the faces take up, the residual
-    energy estab (n,) and the stencil gradients contrib (3,K) in the lane layout of
-    :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w, st_uv: weight blocks);
-    ``nch`` chunks split the mesh; ``scratch[row]`` (5, S) is the calling thread's own (no
-    allocation, no shared writes; one row per thread stays in L1).
+    """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_pass, and tile by
+    tile integrator.vertex_parts): the vertex term for its lane groups (four vertices at
+    a time, :func:`_vertex_lanes`) and its single vertices (stencil sizes that do not fill
+    a group, :func:`_vertex`): kap, epsbar, the coupling stress Theta kap (n,3) that the
+    faces take up, the residual energy estab (n,) and the stencil gradients contrib (3,K)
+    in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w,
+    st_uv: weight blocks); ``nch`` chunks split the mesh (:func:`chunk_of_vertex`); ``scratch[row]`` (5, S) is
+    this work item's alone while it runs (no allocation, no shared writes).
 
     With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
     ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
@@ -602,8 +602,8 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
     gets that body's ``noalias`` arrays; a plain call was 5-10% slower."""
     # the chunk sizes follow from the caller's nch (not from a module constant, which
-    # numba's cache would freeze into the compiled code); ClothSimulator._schedule repeats
-    # this split. (Spreading the groups and singles evenly over the chunks ran the pass
+    # numba's cache would freeze into the compiled code); chunk_of_vertex is this split in
+    # numpy. (Spreading the groups and singles evenly over the chunks ran the pass
     # 3-9% slower at N = 20 / 40: the few singles then leave the first chunks, i.e. the
     # calling thread, which starts before the woken worker.)
     ng = g_vert.shape[0]
@@ -622,8 +622,20 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
                 phi, scratch, row, contrib, cstress, kap, epsbar, estab)
 
 
+def chunk_of_vertex(n: int, nch: int, g_vert: np.ndarray, s_vert: np.ndarray) -> np.ndarray:
+    """The work item (chunk) of every vertex, (n,) int64: the split of
+    :func:`_vertex_chunk`, lane groups in equal runs, then single vertices in equal runs."""
+    chunk = np.empty(n, dtype=np.int64)
+    if len(g_vert):
+        chunk[g_vert] = (np.arange(len(g_vert)) // -(-len(g_vert) // nch))[:, None]
+    if len(s_vert):
+        chunk[s_vert] = np.arange(len(s_vert)) // -(-len(s_vert) // nch)
+    return chunk
+
+
 def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
-    """Order of the stencil entries and of the weights for the vertex pass (:func:`_vertex_chunk`).
+    """Order of the stencil entries and of the weights for the vertex pass
+    (:func:`_vertex_chunk`).
 
     Entries (indices, rest residuals, gradients): vertices with the same stencil size form
     groups of ``lanes`` (sorted by stencil template, then vertex, within a size; groups in

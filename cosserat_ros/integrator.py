@@ -170,20 +170,18 @@ def variational_forces(x, ops, mat, work, force):
 
 
 @kernel(parallel=True)
-def integrate(ops, work_arrays, gather, q0, q1, x, v, force, f_applied, mass, damp, pinned,
+def integrate(ops, work_arrays, gather, seam, x, v, force, f_applied, mass, damp, pinned,
               gravity, dt, vmax2, acc):
-    """One symplectic Euler update in place of the vertices ``q0 <= j < q1`` (``q0 < 0``:
-    of the seam of the tiled step, ``gl_vert[gl_ptr[-2]:]`` of ops[30], ops[31]); returns
+    """One symplectic Euler update in place of every vertex, or with ``seam`` of the seam
+    vertices of the tiled step only (``gl_vert[gl_ptr[-2]:]``, ops[30], ops[31]); returns
     the number of them that went bad (non-finite or faster than sqrt(vmax2)). With
     ``gather`` the last stage of the variational force (the gather of corner and stencil
     gradients) runs in the same pass and fills ``force``; otherwise ``force`` is read as
     given."""
     tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
     gl_ptr, gl_vert = ops[30], ops[31]
-    seam = q0 < 0
-    if seam:
-        q0 = gl_ptr[gl_ptr.shape[0] - 2]
-        q1 = gl_ptr[gl_ptr.shape[0] - 1]
+    q0 = gl_ptr[gl_ptr.shape[0] - 2] if seam else 0
+    q1 = gl_ptr[gl_ptr.shape[0] - 1] if seam else x.shape[0]
     fgrad, contrib = work_arrays[5], work_arrays[6]
     work = 0.0
     diss = 0.0
@@ -222,10 +220,9 @@ def run_variational(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vm
     coupling (phi != 0) the vertex terms read the face strains and the face coupling
     gradients read the vertex terms: four passes (faces, vertices, faces, gather +
     update). Large meshes step with :func:`run_tiled` instead."""
-    n = x.shape[0]
     for s in range(nsteps):
         variational_stages(x, ops, mat, work)
-        if integrate(ops, work, True, 0, n, x, v, force, f_applied, mass, damp, pinned,
+        if integrate(ops, work, True, False, x, v, force, f_applied, mass, damp, pinned,
                      gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps
@@ -244,7 +241,7 @@ def run_tiled(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
     for s in range(nsteps):
         vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gravity, dt,
                      vmax2, pacc)
-        bad = integrate(ops, work, True, -1, -1, x, v, force, f_applied, mass, damp, pinned,
+        bad = integrate(ops, work, True, True, x, v, force, f_applied, mass, damp, pinned,
                         gravity, dt, vmax2, acc)
         for p in range(pacc.shape[0]):
             acc[0] += pacc[p, 0]
@@ -261,10 +258,9 @@ def run_covariant(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax
     """:func:`run_variational` with the seed's covariant-divergence force. A kernel of its
     own (not a branch of one stepping kernel), so that a process that never selects it
     never compiles it."""
-    n = x.shape[0]
     for s in range(nsteps):
         covariant_forces(x, ops, cov, mat, cwork, force)
-        if integrate(ops, work, False, 0, n, x, v, force, f_applied, mass, damp, pinned,
+        if integrate(ops, work, False, False, x, v, force, f_applied, mass, damp, pinned,
                      gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps

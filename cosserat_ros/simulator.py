@@ -200,13 +200,7 @@ class ClothSimulator:
           per thread).
         """
         n, faces = self.mesh.n_vertices, self.mesh.faces
-        g_vert, s_vert = self._ops[19], self._ops[22]
-        chunk = np.empty(n, dtype=np.int64)
-        # the split of forces._vertex_chunk: groups, then single vertices, in equal runs
-        if len(g_vert):
-            chunk[g_vert] = (np.arange(len(g_vert)) // -(-len(g_vert) // nch))[:, None]
-        if len(s_vert):
-            chunk[s_vert] = np.arange(len(s_vert)) // -(-len(s_vert) // nch)
+        chunk = _forces.chunk_of_vertex(n, nch, self._ops[19], self._ops[22])
         face_chunk = (chunk[faces].max(axis=1) if tiled
                       else np.arange(len(faces)) // -(-len(faces) // nch))
         fc_face = np.argsort(face_chunk, kind='stable').astype(np.int64)

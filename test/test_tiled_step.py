@@ -8,6 +8,7 @@ import trimesh
 
 from cosserat_ros import integrator
 from cosserat_ros.constants import FUSE_MIN_VERTICES
+from cosserat_ros.forces import chunk_of_vertex
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
 
@@ -31,13 +32,8 @@ def _sim(mesh, tile_vertices, parts, tiled):
 def _contributors(sim):
     """(vertex, chunk) pairs: every chunk whose work reads x_j or feeds the force on j."""
     tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile = sim._ops[27:33]
-    n = sim.mesh.n_vertices
     nch = tile_ch[-1]
-    g_vert, s_vert = sim._ops[19], sim._ops[22]
-    gchunk, schunk = -(-len(g_vert) // nch), -(-max(len(s_vert), 1) // nch)
-    chunk = np.empty(n, dtype=np.int64)
-    chunk[g_vert] = (np.arange(len(g_vert)) // gchunk)[:, None]
-    chunk[s_vert] = np.arange(len(s_vert)) // schunk
+    chunk = chunk_of_vertex(sim.mesh.n_vertices, nch, sim._ops[19], sim._ops[22])
     face_chunk = np.repeat(np.arange(nch), np.diff(fc_ptr))[np.argsort(fc_face)]
     st_ptr, st_idx = sim._jet.st_ptr, sim._jet.st_idx
     pairs = [(st_idx, np.repeat(chunk, np.diff(st_ptr))),
