@@ -70,9 +70,9 @@ DIVERGENCE_METHODS = ('variational', 'covariant')
 def _deformation_gradient(x, faces, dinv, t):
     """F_t = [x1 - x0, x2 - x0] Dinv_t (3x2) of face t, returned row by row (F_00, F_01,
     F_10, F_11, F_20, F_21). Recomputed where needed rather than stored (memory traffic)."""
-    i0 = faces[t, 0]
-    i1 = faces[t, 1]
-    i2 = faces[t, 2]
+    i0 = nb.uint64(faces[t, 0])     # unsigned: no negative-index wrap-around per load
+    i1 = nb.uint64(faces[t, 1])
+    i2 = nb.uint64(faces[t, 2])
     d00 = dinv[t, 0, 0]
     d01 = dinv[t, 0, 1]
     d10 = dinv[t, 1, 0]
@@ -436,10 +436,12 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     p0 = b + 4
     bw = g_wptr[g]          # weights and chart coordinates: the group's (shared) block
     q0 = bw + 4
-    i0 = g_vert[g, 0]
-    i1 = g_vert[g, 1]
-    i2 = g_vert[g, 2]
-    i3 = g_vert[g, 3]
+    # the lanes' vertices, unsigned (no negative-index wrap-around per load or store);
+    # _epsbar takes them signed (it adds 1 to them)
+    i0 = nb.uint64(g_vert[g, 0])
+    i1 = nb.uint64(g_vert[g, 1])
+    i2 = nb.uint64(g_vert[g, 2])
+    i3 = nb.uint64(g_vert[g, 3])
     xi0 = _gather_lanes(x, 0, i0, i1, i2, i3)
     xi1 = _gather_lanes(x, 1, i0, i1, i2, i3)
     xi2 = _gather_lanes(x, 2, i0, i1, i2, i3)
@@ -453,10 +455,11 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     for s in range(ns):
         k = p0 + 4 * s
         kw = q0 + 4 * s
-        j0 = nb.uint64(st_idx[k])
-        j1 = nb.uint64(st_idx[k + 1])
-        j2 = nb.uint64(st_idx[k + 2])
-        j3 = nb.uint64(st_idx[k + 3])
+        ku = nb.uint64(k)       # unsigned: no negative-index wrap-around per load
+        j0 = nb.uint64(st_idx[ku])
+        j1 = nb.uint64(st_idx[ku + nb.uint64(1)])
+        j2 = nb.uint64(st_idx[ku + nb.uint64(2)])
+        j3 = nb.uint64(st_idx[ku + nb.uint64(3)])
         d0 = _gather_lanes(x, 0, j0, j1, j2, j3) - xi0
         d1 = _gather_lanes(x, 1, j0, j1, j2, j3) - xi1
         d2 = _gather_lanes(x, 2, j0, j1, j2, j3) - xi2
@@ -500,10 +503,10 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     k11 = -(q2 - _gather_lanes(rest_b, 0, i0, i1, i2, i3))
     k12 = -(q3 - _gather_lanes(rest_b, 1, i0, i1, i2, i3))
     k22 = -(q4 - _gather_lanes(rest_b, 2, i0, i1, i2, i3))
-    a0, b0, c0_ = _epsbar(i0, vf_ptr, vf_face, eps, vf_K, phi)
-    a1, b1, c1_ = _epsbar(i1, vf_ptr, vf_face, eps, vf_K, phi)
-    a2, b2, c2_ = _epsbar(i2, vf_ptr, vf_face, eps, vf_K, phi)
-    a3, b3, c3_ = _epsbar(i3, vf_ptr, vf_face, eps, vf_K, phi)
+    a0, b0, c0_ = _epsbar(g_vert[g, 0], vf_ptr, vf_face, eps, vf_K, phi)
+    a1, b1, c1_ = _epsbar(g_vert[g, 1], vf_ptr, vf_face, eps, vf_K, phi)
+    a2, b2, c2_ = _epsbar(g_vert[g, 2], vf_ptr, vf_face, eps, vf_K, phi)
+    a3, b3, c3_ = _epsbar(g_vert[g, 3], vf_ptr, vf_face, eps, vf_K, phi)
     e11 = vset(a0, a1, a2, a3)
     e12 = vset(b0, b1, b2, b3)
     e22 = vset(c0_, c1_, c2_, c3_)
@@ -609,7 +612,7 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     ng = g_vert.shape[0]
     nsv = s_vert.shape[0]
     for q in range(fc_ptr[ch], fc_ptr[ch + 1] if with_faces else fc_ptr[ch]):
-        _face_membrane(fc_face[q], x, faces, dinv, face_area, zeta, eps, fgrad)
+        _face_membrane(nb.uint64(fc_face[q]), x, faces, dinv, face_area, zeta, eps, fgrad)
     gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
         _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
@@ -758,18 +761,24 @@ def face_coupling(x, faces, dinv, face_area, K, cstress, fgrad):
 @kernel(inline='always')
 def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
     """-dE/dx_j: corner gradients of the incident faces plus the stencil gradients of every
-    vertex whose jet uses x_j (the transposed stencil)."""
+    vertex whose jet uses x_j (the transposed stencil).
+
+    The indices are read as unsigned: a signed index makes numba add its negative-index
+    wrap-around (four integer instructions per load), which cost the gather ~25% at
+    N = 40 (one thread, 42 -> 31 ns per vertex)."""
+    j1 = nb.uint64(j + 1)
+    j = nb.uint64(j)
     g0 = 0.0
     g1 = 0.0
     g2 = 0.0
-    for q in range(vf_ptr[j], vf_ptr[j + 1]):
-        t = vf_face[q]
-        c = vf_corner[q]
+    for q in range(vf_ptr[j], vf_ptr[j1]):
+        t = nb.uint64(vf_face[q])
+        c = nb.uint64(vf_corner[q])
         g0 += fgrad[t, c, 0]
         g1 += fgrad[t, c, 1]
         g2 += fgrad[t, c, 2]
-    for q in range(tr_ptr[j], tr_ptr[j + 1]):
-        k = tr_slot[q]
+    for q in range(tr_ptr[j], tr_ptr[j1]):
+        k = nb.uint64(tr_slot[q])
         g0 += contrib[0, k]
         g1 += contrib[1, k]
         g2 += contrib[2, k]

@@ -32,6 +32,7 @@ def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, g0, g1, g2, 
     """Eq. 29 for vertex i with internal force f: returns (external work, dissipation,
     1 if the vertex went bad (non-finite or faster than sqrt(vmax2)) else 0); a pinned
     vertex stays put: (0, 0, 0)."""
+    i = nb.uint64(i)        # no negative-index wrap-around on the ~15 loads and stores
     if pinned[i]:
         return 0.0, 0.0, 0
     m = mass[i]
