@@ -611,7 +611,8 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     # calling thread, which starts before the woken worker.)
     ng = g_vert.shape[0]
     nsv = s_vert.shape[0]
-    for q in range(fc_ptr[ch], fc_ptr[ch + 1] if with_faces else fc_ptr[ch]):
+    for q in range(nb.uint64(fc_ptr[ch]), nb.uint64(fc_ptr[ch + 1] if with_faces else
+                                                  fc_ptr[ch])):
         _face_membrane(nb.uint64(fc_face[q]), x, faces, dinv, face_area, zeta, eps, fgrad)
     gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
@@ -771,13 +772,13 @@ def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
     g0 = 0.0
     g1 = 0.0
     g2 = 0.0
-    for q in range(vf_ptr[j], vf_ptr[j1]):
+    for q in range(nb.uint64(vf_ptr[j]), nb.uint64(vf_ptr[j1])):
         t = nb.uint64(vf_face[q])
         c = nb.uint64(vf_corner[q])
         g0 += fgrad[t, c, 0]
         g1 += fgrad[t, c, 1]
         g2 += fgrad[t, c, 2]
-    for q in range(tr_ptr[j], tr_ptr[j1]):
+    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
         k = nb.uint64(tr_slot[q])
         g0 += contrib[0, k]
         g1 += contrib[1, k]
