@@ -14,6 +14,12 @@
   the summation order of those sums only (results move by ~1e-15 relative, and stay
   deterministic); a NaN or inf still propagates.
 
+Indices in the hot loops are cast to ``nb.uint64`` before they index an array (and loop
+ranges over index arrays run over unsigned bounds): through a signed index numba adds its
+negative-index wrap-around to every load and store, four integer instructions that made
+the gather of the step ~25% slower (docs/performance.md). Mixing uint64 with int64 in
+arithmetic gives a float in numba, so the casts stay next to the loads.
+
 Stale caches
 ------------
 numba keys a cached function by the time stamp of its own source file only. A kernel that

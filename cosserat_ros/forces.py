@@ -595,8 +595,9 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     a group, :func:`_vertex`): kap, epsbar, the coupling stress Theta kap (n,3) that the
     faces take up, the residual energy estab (n,) and the stencil gradients contrib (3,K)
     in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w,
-    st_uv: weight blocks); ``nch`` chunks split the mesh (:func:`chunk_of_vertex`); ``scratch[row]`` (5, S) is
-    this work item's alone while it runs (no allocation, no shared writes).
+    st_uv: weight blocks); ``nch`` chunks split the mesh (:func:`chunk_of_vertex`);
+    ``scratch[row]`` (5, S) is this work item's alone while it runs (no allocation, no
+    shared writes).
 
     With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
     ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
