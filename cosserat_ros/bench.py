@@ -47,7 +47,8 @@ DT_FRACTION = 0.9
 
 def _bytes(sim: ClothSimulator) -> int:
     arrays = list(sim._ops) + list(sim._work) + list(sim._cwork) + [
-        sim._x, sim._v, sim._force, sim._mass, sim._damp, sim._f_applied, sim._st_T]
+        sim._x, sim._v, sim._force, sim._mass, sim._damp, sim._f_applied, sim._st_T,
+        *sim._csr]
     return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
 

@@ -117,17 +117,19 @@ def _corner_gradients(x, faces, dinv, t, s11, s12, s22, fgrad, add):
 
 
 @kernel(inline='always')
-def _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad):
-    """Face t: Green strain eps[t] = (11, 12, 22) of the deformation gradient F (Eq. 17)
-    and the membrane's corner gradients fgrad[t] (3,3) = d(area W_m)/dx_corner, with
-    ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
+def _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
+    """Face t: Green strain eps[t] = (11, 12, 22) of the deformation gradient F (Eq. 17),
+    stored if ``store_eps`` (a constant at every call: the step's vertex pass does not
+    need it), and the membrane's corner gradients fgrad[t] (3,3) = d(area W_m)/dx_corner,
+    with ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
     f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
     e11 = 0.5 * (f00 * f00 + f10 * f10 + f20 * f20 - 1.0)
     e12 = 0.5 * (f00 * f01 + f10 * f11 + f20 * f21)
     e22 = 0.5 * (f01 * f01 + f11 * f11 + f21 * f21 - 1.0)
-    eps[t, 0] = e11
-    eps[t, 1] = e12
-    eps[t, 2] = e22
+    if store_eps:
+        eps[t, 0] = e11
+        eps[t, 1] = e12
+        eps[t, 2] = e22
     c = face_area[t] * 2.0 * zeta
     tr = e11 + e22
     s11 = c * (tr + 2.0 * e11)
@@ -144,7 +146,7 @@ def face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad):
     (:func:`_face_membrane`). The step runs this in the vertex pass when phi = 0; with a
     coupling, the vertex pass reads eps, so the faces go first in a pass of their own."""
     for t in nb.prange(faces.shape[0]):
-        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad)
+        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
 
 
 @kernel(inline='always')
@@ -414,8 +416,7 @@ def _store_lanes(a, c, i0, i1, i2, i3, v):
 
 @kernel(inline='always')
 def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
-                  vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress,
-                  kap, epsbar, estab):
+                  vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress):
     """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
     (:mod:`.simd`): the same formulas, each operation on the four vertices in one vector.
 
@@ -519,21 +520,22 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     m12 = m12 + s12
     m22 = m22 + s22
     cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
+    # the step stores the coupling stress (the faces read it when phi != 0), not kap,
+    # epsbar or the residual energy: only the energy reads those, and it takes them from
+    # vertex_fields (storing them here cost the step 5-17%)
     _store_lanes(cstress, 0, i0, i1, i2, i3, cs11)
     _store_lanes(cstress, 1, i0, i1, i2, i3, cs12)
     _store_lanes(cstress, 2, i0, i1, i2, i3, cs22)
-    _store_lanes(kap, 0, i0, i1, i2, i3, k11)
-    _store_lanes(kap, 1, i0, i1, i2, i3, k12)
-    _store_lanes(kap, 2, i0, i1, i2, i3, k22)
-    _store_lanes(epsbar, 0, i0, i1, i2, i3, e11)
-    _store_lanes(epsbar, 1, i0, i1, i2, i3, e12)
-    _store_lanes(epsbar, 2, i0, i1, i2, i3, e22)
     A = vset(dual_area[i0], dual_area[i1], dual_area[i2], dual_area[i3])
     g11 = -A * m11
     g12 = -2.0 * A * m12
     g22 = -A * m22
     # pass 3: residuals along the normal and h_k = dE_i/d(dn_k)
     om = vset(stab[i0], stab[i1], stab[i2], stab[i3])
+    # e, the residual's sum of squares, is not stored here (vertex_fields computes it for
+    # the energy), and LLVM drops it in the end. It stays because with it in the loop
+    # LLVM compiles the loop into code that ran the step 0.87-0.91x the time of the loop
+    # without it (paired, N = 20 / 40).
     e = splat(0.0)
     for s in range(ns):
         k = p0 + 4 * s
@@ -546,10 +548,6 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
                + vload(st_w, 4 * KW + kw) * g22)
         e = vfma(dd, dd, e)
     e = om * e
-    estab[i0] = lane(e, 0)
-    estab[i1] = lane(e, 1)
-    estab[i2] = lane(e, 2)
-    estab[i3] = lane(e, 3)
     # V = sum_k h_k d_k and sum_k h_k
     v0 = splat(0.0)
     v1 = splat(0.0)
@@ -592,16 +590,18 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_pass, and tile by
     tile integrator.vertex_parts): the vertex term for its lane groups (four vertices at
     a time, :func:`_vertex_lanes`) and its single vertices (stencil sizes that do not fill
-    a group, :func:`_vertex`): kap, epsbar, the coupling stress Theta kap (n,3) that the
-    faces take up, the residual energy estab (n,) and the stencil gradients contrib (3,K)
-    in the lane layout of :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w,
-    st_uv: weight blocks); ``nch`` chunks split the mesh (:func:`chunk_of_vertex`);
+    a group, :func:`_vertex`): the coupling stress Theta kap (n,3) that the faces take up
+    and the stencil gradients contrib (3,K) (the single vertices also store kap, epsbar
+    and estab; the energy takes all of them from :func:`vertex_fields`) in the lane
+    layout of :func:`lane_layout` (st_idx, st_sigma, contrib: entries; st_w, st_uv:
+    weight blocks); ``nch`` chunks split the mesh (:func:`chunk_of_vertex`);
     ``scratch[row]`` (5, S) is this work item's alone while it runs (no allocation, no
     shared writes).
 
     With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
     ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
-    step. Only valid when the vertex terms do not read eps (phi = 0).
+    step. Only valid when the vertex terms do not read eps (phi = 0); the strains are
+    then not stored.
 
     ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
     gets that body's ``noalias`` arrays; a plain call was 5-10% slower."""
@@ -614,17 +614,48 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     nsv = s_vert.shape[0]
     for q in range(nb.uint64(fc_ptr[ch]), nb.uint64(fc_ptr[ch + 1] if with_faces else
                                                   fc_ptr[ch])):
-        _face_membrane(nb.uint64(fc_face[q]), x, faces, dinv, face_area, zeta, eps, fgrad)
+        _face_membrane(nb.uint64(fc_face[q]), x, faces, dinv, face_area, zeta, eps, fgrad,
+                       False)
     gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
         _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                      row, contrib, cstress, kap, epsbar, estab)
+                      row, contrib, cstress)
     schunk = (nsv + nch - 1) // nch
     for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
         _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], s_wptr[u], x, st_idx, st_w, st_uv,
                 st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
                 phi, scratch, row, contrib, cstress, kap, epsbar, estab)
+
+
+#: :func:`_vertex` compiled as a function of its own, for the parallel loop of
+#: :func:`vertex_fields`: numba's parallel passes then see a call instead of the inlined
+#: vertex term, which took them ~12 s more to compile (cold start)
+_vertex_call = kernel()(_vertex.py_func)
+
+
+@kernel(parallel=True)
+def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, st_sigma,
+                  stab, vf_ptr, vf_face, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
+                  csr_contrib, fgrad, eps, cstress, kap, epsbar, estab):
+    """The per-element fields of the energy at positions x: face strains eps (m,3) (Eq. 17),
+    curvature change kap, strain average epsbar and coupling stress (n,3), and the jet
+    residual energy estab (n,), from the same formulas as the step (:func:`_face_membrane`,
+    :func:`_vertex`) on the stencils in plain CSR order (``st_uv``, ``st_sigma`` in that
+    order too). The step does not store them (the stores cost it 5-17%); the energy report
+    calls this after the force. ``fgrad`` and ``csr_contrib`` (3,K) receive gradients that
+    are not used; ``scratch`` (R, 5, S) gives each of its R work items a row."""
+    for t in nb.prange(faces.shape[0]):
+        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
+    n = x.shape[0]
+    nch = scratch.shape[0]
+    chunk = (n + nch - 1) // nch
+    for c in nb.prange(nch):
+        for i in range(np.int64(c) * chunk, min(n, (np.int64(c) + 1) * chunk)):
+            _vertex_call(i, st_ptr[i], st_ptr[i + 1], st_ptr[i], x, st_idx, st_w, st_uv,
+                         st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b,
+                         xi, phi, scratch, np.int64(c), csr_contrib, cstress, kap, epsbar,
+                         estab)
 
 
 def chunk_of_vertex(n: int, nch: int, g_vert: np.ndarray, s_vert: np.ndarray) -> np.ndarray:

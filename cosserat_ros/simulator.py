@@ -150,6 +150,9 @@ class ClothSimulator:
                      mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K,
                      g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
+        # the energy's fields (forces.vertex_fields) read the stencils in plain CSR order:
+        # its chart coordinates and rest residuals in that order too
+        self._csr = (st_uv, st_sigma)
         nch = -(-n // VERTEX_CHUNK)
         # large meshes without coupling step tile by tile (integrator.run_tiled)
         self._tiled = n >= FUSE_MIN_VERTICES
@@ -505,7 +508,14 @@ class ClothSimulator:
         f = np.empty_like(self._force)
         # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
         variational_forces(self._x, self._ops, self._mat, self._work, f)
-        eps, _, kap, epsbar, estab = self._work[:5]
+        # the step stores no fields; they come from their own pass (the contrib and fgrad
+        # work arrays take its unused gradients: the next step rewrites them)
+        eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work
+        o = self._ops
+        _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], o[8], o[9],
+                              *self._csr, o[12], o[15], o[16], o[18], o[4], o[5], o[6],
+                              self._mat[1], self._mat[2], scratch, contrib, fgrad, eps,
+                              cstress, kap, epsbar, estab)
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
