@@ -286,9 +286,10 @@ def _vertex(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr, vf_fa
     for the uniform fit weights), so the residual term needs no jet adjoint of its own.
     Writes ``contrib[k] = dE_i/dx_j`` for every stencil entry, coordinate-major (3, K);
     the centre's (minus the sum of the others) comes from the centre weights and
-    ``sum_k h_k``. ``sc[ch]`` (5, S) is the chunk's scratch. Also writes the residual
-    energy estab[i] (one multiply-add per entry: cheaper than a second compiled variant of
-    the pass for the energy).
+    ``sum_k h_k``. ``sc[ch]`` (5, S) is the chunk's scratch. Also writes kap, epsbar, the
+    coupling stress and the residual energy estab[i]: this scalar form serves the step's
+    single vertices and :func:`vertex_fields` (the energy); the lane form
+    (:func:`_vertex_lanes`) stores only what the step reads.
 
     Written for the vectoriser: no array views inside the parallel loop (numba then marks
     the kernel's arrays ``noalias`` and LLVM vectorises the contiguous loops without
