@@ -523,7 +523,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
     # the step stores the coupling stress (the faces read it when phi != 0), not kap,
     # epsbar or the residual energy: only the energy reads those, and it takes them from
-    # vertex_fields (storing them here cost the step 5-17%)
+    # vertex_fields (storing them here cost the step 3-13%, paired)
     _store_lanes(cstress, 0, i0, i1, i2, i3, cs11)
     _store_lanes(cstress, 1, i0, i1, i2, i3, cs12)
     _store_lanes(cstress, 2, i0, i1, i2, i3, cs22)
@@ -643,7 +643,7 @@ def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, 
     curvature change kap, strain average epsbar and coupling stress (n,3), and the jet
     residual energy estab (n,), from the same formulas as the step (:func:`_face_membrane`,
     :func:`_vertex`) on the stencils in plain CSR order (``st_uv``, ``st_sigma`` in that
-    order too). The step does not store them (the stores cost it 5-17%); the energy report
+    order too). The step does not store them (the stores cost it 3-13%); the energy report
     calls this after the force. ``fgrad`` and ``csr_contrib`` (3,K) receive gradients that
     are not used; ``scratch`` (R, 5, S) gives each of its R work items a row."""
     for t in nb.prange(faces.shape[0]):
