@@ -644,8 +644,11 @@ def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, 
     residual energy estab (n,), from the same formulas as the step (:func:`_face_membrane`,
     :func:`_vertex`) on the stencils in plain CSR order (``st_uv``, ``st_sigma`` in that
     order too). The step does not store them (the stores cost it 3-13%); the energy report
-    calls this after the force. ``fgrad`` and ``csr_contrib`` (3,K) receive gradients that
-    are not used; ``scratch`` (R, 5, S) gives each of its R work items a row."""
+    calls this instead of the step's force. It also writes the membrane corner gradients
+    ``fgrad`` and the stencil gradients ``csr_contrib`` (3,K) in CSR order, so that the
+    report gathers its force from them (with the transposed stencil's CSR slots) rather
+    than run the force a second time; ``scratch`` (R, 5, S) gives each of its R work
+    items a row."""
     for t in nb.prange(faces.shape[0]):
         _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
     n = x.shape[0]

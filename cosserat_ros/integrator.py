@@ -150,8 +150,10 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
 
 @kernel()
 def variational_stages(x, ops, mat, work):
-    """Everything of the variational force but the final gather: face strains, the vertex
-    pass (with the jet residual energy estab) and the face gradients (work arrays)."""
+    """Everything of the variational force but the final gather: the face and stencil
+    gradients (work arrays). The face strains and the coupling stress are stored only
+    when phi != 0 (the coupling reads them); kap, epsbar and the residual energy come
+    from forces.vertex_fields, not from here."""
     faces, dinv, face_area, K = ops[0], ops[1], ops[2], ops[3]
     zeta, phi = mat[0], mat[2]
     eps, cstress, fgrad = work[0], work[1], work[5]
@@ -164,8 +166,7 @@ def variational_stages(x, ops, mat, work):
 
 @kernel()
 def variational_forces(x, ops, mat, work, force):
-    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x (and
-    the strains, curvatures and jet residual energy in the work arrays)."""
+    """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
     variational_stages(x, ops, mat, work)
     gather_forces(ops[15], ops[16], ops[17], work[5], ops[13], ops[14], work[6], force)
 

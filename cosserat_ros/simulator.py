@@ -506,16 +506,19 @@ class ClothSimulator:
     def energy_and_densities(self):
         """:meth:`energy` and :meth:`energy_densities` from one force evaluation."""
         f = np.empty_like(self._force)
-        # fills the work arrays (face strains, kap, epsbar, residual energy) and the force
-        variational_forces(self._x, self._ops, self._mat, self._work, f)
-        # the step stores no fields; they come from their own pass (the contrib and fgrad
-        # work arrays take its unused gradients: the next step rewrites them)
+        # the step stores no fields (face strains, kap, epsbar, residual energy): one pass
+        # of their own fills them and the face and stencil gradients, the latter in CSR
+        # order (the contrib and fgrad work arrays; the next step rewrites them), and the
+        # force is the gather of those through the CSR transposed stencil
         eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work
         o = self._ops
         _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], o[8], o[9],
                               *self._csr, o[12], o[15], o[16], o[18], o[4], o[5], o[6],
                               self._mat[1], self._mat[2], scratch, contrib, fgrad, eps,
                               cstress, kap, epsbar, estab)
+        if self._mat[2] != 0.0:
+            _forces.face_coupling(self._x, o[0], o[1], o[2], o[3], cstress, fgrad)
+        _forces.gather_forces(o[15], o[16], o[17], fgrad, o[13], self._jet.tr_slot, contrib, f)
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
