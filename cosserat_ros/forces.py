@@ -423,21 +423,24 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
 
     The group's stencils have the same size, and their entries are interleaved (lane
     order, :func:`lane_layout`): entry s of lane l sits at ``g_ptr[g] + 4 s + l``, s = 0
-    the centre, and its weights and chart coordinates at ``g_wptr[g] + 4 s + l`` (a block
-    that groups with the same stencil templates share). So the weights, chart coordinates
-    and rest residuals of one entry of the four vertices load as one vector, and the
-    gradients store as one; only the positions x[j] are gathered lane by lane. The stencil
-    loops have no remainder and no horizontal sums, and the per-vertex work (normal,
+    the centre, its weights and chart coordinates at ``g_wptr[g, 0] + 4 s + l`` (a block
+    that groups with the same stencil templates share) and its neighbour's offset
+    ``j - i`` and rest residual at ``g_wptr[g, 1] + 4 s + l`` (a block that groups with
+    the same offsets and residuals share). So the weights, chart coordinates and rest
+    residuals of one entry of the four vertices load as one vector, and the gradients
+    store as one; only the positions x[j] are gathered lane by lane. The stencil loops
+    have no remainder and no horizontal sums, and the per-vertex work (normal,
     resultants, adjoint) is shared four ways."""
-    K = st_idx.shape[0]
+    K = contrib.shape[1]     # entries (ln_idx and ln_sigma hold blocks, maybe fewer)
     KW = st_w.shape[1]
     W = sc.shape[2]
     r0 = ch * 5 * W          # scratch rows d_0, d_1, d_2, dn, h of this chunk (flat offsets)
     b = g_ptr[g]
     ns = (g_ptr[g + 1] - b) // 4 - 1
     p0 = b + 4
-    bw = g_wptr[g]          # weights and chart coordinates: the group's (shared) block
+    bw = g_wptr[g, 0]       # weights and chart coordinates: the group's (shared) block
     q0 = bw + 4
+    e0 = g_wptr[g, 1] + 4   # neighbour offsets and rest residuals: its (shared) block
     # the lanes' vertices, unsigned (no negative-index wrap-around per load or store);
     # _epsbar takes them signed (it adds 1 to them)
     i0 = nb.uint64(g_vert[g, 0])
@@ -455,13 +458,14 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     a21 = splat(0.0)
     a22 = splat(0.0)
     for s in range(ns):
-        k = p0 + 4 * s
         kw = q0 + 4 * s
-        ku = nb.uint64(k)       # unsigned: no negative-index wrap-around per load
-        j0 = nb.uint64(st_idx[ku])
-        j1 = nb.uint64(st_idx[ku + nb.uint64(1)])
-        j2 = nb.uint64(st_idx[ku + nb.uint64(2)])
-        j3 = nb.uint64(st_idx[ku + nb.uint64(3)])
+        ke = nb.uint64(e0 + 4 * s)      # unsigned: no negative-index wrap-around per load
+        # j = i + (j - i) in unsigned arithmetic: modulo 2^64, so a negative offset (a
+        # two's complement) wraps to the right index
+        j0 = i0 + nb.uint64(st_idx[ke])
+        j1 = i1 + nb.uint64(st_idx[ke + nb.uint64(1)])
+        j2 = i2 + nb.uint64(st_idx[ke + nb.uint64(2)])
+        j3 = i3 + nb.uint64(st_idx[ke + nb.uint64(3)])
         d0 = _gather_lanes(x, 0, j0, j1, j2, j3) - xi0
         d1 = _gather_lanes(x, 1, j0, j1, j2, j3) - xi1
         d2 = _gather_lanes(x, 2, j0, j1, j2, j3) - xi2
@@ -539,9 +543,8 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     # without it (paired, N = 20 / 40).
     e = splat(0.0)
     for s in range(ns):
-        k = p0 + 4 * s
         kw = q0 + 4 * s
-        dd = (vload(sc, r0 + 3 * W + 4 * s) - vload(st_sigma, k)
+        dd = (vload(sc, r0 + 3 * W + 4 * s) - vload(st_sigma, e0 + 4 * s)
               - _phi_dot(vload(st_uv, kw), vload(st_uv, KW + kw), 0.0, 0.0, q2, q3, q4, q5, q6,
                          q7, q8))
         vstore(sc, r0 + 4 * W + 4 * s,
@@ -673,26 +676,34 @@ def chunk_of_vertex(n: int, nch: int, g_vert: np.ndarray, s_vert: np.ndarray) ->
     return chunk
 
 
-def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
-    """Order of the stencil entries and of the weights for the vertex pass
-    (:func:`_vertex_chunk`).
+def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
+                st_sigma: np.ndarray, lanes: int = LANES):
+    """Order of the stencil entries, and blocks of the weights and of the entries' own
+    data, for the vertex pass (:func:`_vertex_chunk`).
 
-    Entries (indices, rest residuals, gradients): vertices with the same stencil size form
-    groups of ``lanes`` (sorted by stencil template, then vertex, within a size; groups in
-    the order of their first vertex); a group's entries are interleaved, entry s of lane l
-    at ``g_ptr[g] + lanes s + l`` (s = 0 the centre). The vertices left over (fewer than
-    ``lanes`` of a size; ``lanes = 1`` puts every vertex here) follow as plain CSR blocks
-    ``s_ptr[u] : s_ptr[u + 1]``.
+    Entries (the gradients the pass writes, contrib): the vertices left over from the
+    groups below (fewer than ``lanes`` of a stencil size; ``lanes = 1`` puts every vertex
+    here) come first, as plain CSR blocks ``s_ptr[u] : s_ptr[u + 1]``. Then the vertices
+    with the same stencil size form groups of ``lanes`` (sorted by stencil template, then
+    vertex, within a size; groups in the order of their first vertex); a group's entries
+    are interleaved, entry s of lane l at ``g_ptr[g] + lanes s + l`` (s = 0 the centre).
 
-    Weights (and chart coordinates): a group reads the block at ``g_wptr[g]``, in the
+    Weights (and chart coordinates): a group reads the block at ``g_wptr[g, 0]``, in the
     same interleaved order; groups whose lanes have the same templates (geometry.py,
     ``JetOperator.template``) share one block, so a structured sheet streams almost no
     weights. A single vertex reads its block at ``s_wptr[u]``.
 
-    Returns ``g_vert`` (G, lanes), ``g_ptr`` (G+1,), ``g_wptr`` (G,), ``s_vert`` (S,),
+    The entries' neighbour and rest residual (``ln_idx``, ``ln_sigma``): a single vertex
+    reads them at its entries' own positions (the neighbour's index); a group reads them
+    in the block at ``g_wptr[g, 1]``, interleaved, with the neighbour as an offset from
+    the lane's vertex (``j = i + ln_idx``). Groups whose offsets and rest residuals are
+    the same to the bit share one block: on a sheet numbered row by row and flat at rest
+    the pass then streams neither indices nor residuals, only its gradients.
+
+    Returns ``g_vert`` (G, lanes), ``g_ptr`` (G+1,), ``g_wptr`` (G, 2), ``s_vert`` (S,),
     ``s_ptr`` (S+1,), ``s_wptr`` (S,), all int64; ``pos`` (K,): the position of CSR entry
     k in the entry order (a permutation); ``wsrc`` (KW,): the CSR entry whose weights fill
-    each slot of the weight blocks."""
+    each slot of the weight blocks; ``ln_idx`` (KE,) int64 and ``ln_sigma`` (KE,)."""
     n = len(st_ptr) - 1
     sizes = np.diff(st_ptr)
     order = np.lexsort((np.arange(n), template, sizes))
@@ -705,11 +716,11 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
     g_vert = g_vert[np.argsort(g_vert[:, 0], kind='stable')]
     s_vert = np.sort(order[~grouped]).astype(np.int64)
     g_size = sizes[g_vert[:, 0]]
-    g_ptr = np.zeros(len(g_vert) + 1, dtype=np.int64)
-    np.cumsum(lanes * g_size, out=g_ptr[1:])
-    s_ptr = np.full(len(s_vert) + 1, g_ptr[-1], dtype=np.int64)
+    s_ptr = np.zeros(len(s_vert) + 1, dtype=np.int64)
     np.cumsum(sizes[s_vert], out=s_ptr[1:])
-    s_ptr[1:] += g_ptr[-1]
+    g_ptr = np.full(len(g_vert) + 1, s_ptr[-1], dtype=np.int64)
+    np.cumsum(lanes * g_size, out=g_ptr[1:])
+    g_ptr[1:] += s_ptr[-1]
     pos = np.empty(st_ptr[-1], dtype=np.int64)
     # grouped entries: vertex g_vert[g, l], its entry s -> g_ptr[g] + lanes s + l
     gv = g_vert.ravel()
@@ -721,24 +732,37 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, lanes: int = LANES):
     sz = sizes[s_vert]
     s_in = np.arange(sz.sum()) - np.repeat(np.cumsum(sz) - sz, sz)
     pos[np.repeat(st_ptr[s_vert], sz) + s_in] = np.repeat(s_ptr[:-1], sz) + s_in
-    # weight blocks: one per distinct tuple of lane templates, then one per single vertex
-    blocks = {}
-    g_wptr = np.empty(len(g_vert), dtype=np.int64)
-    src = []
-    nw = 0
+    owner = np.repeat(np.arange(n, dtype=np.int64), sizes)
+    offset = st_idx - owner
+    # weight blocks (one per distinct tuple of lane templates, then one per single vertex)
+    # and entry blocks (after the single vertices' entries: one per distinct pair of the
+    # group's offsets and rest residuals)
+    wblocks, eblocks = {}, {}
+    g_wptr = np.empty((len(g_vert), 2), dtype=np.int64)
+    wsrc, esrc = [], [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
+    nw, ne = 0, int(s_ptr[-1])
     for g, verts in enumerate(g_vert):
-        key = tuple(template[verts])
-        if key not in blocks:
-            blocks[key] = nw
-            m = int(g_size[g])
-            # slot lanes s + l holds entry s of lane l (its own CSR entry: same weights)
-            src.append((st_ptr[verts][None, :] + np.arange(m)[:, None]).ravel())
+        m = int(g_size[g])
+        # slot lanes s + l holds entry s of lane l
+        src = (st_ptr[verts][None, :] + np.arange(m)[:, None]).ravel()
+        wkey = tuple(template[verts])
+        if wkey not in wblocks:
+            wblocks[wkey] = nw
+            wsrc.append(src)        # each lane's own CSR entry: same weights as the template
             nw += lanes * m
-        g_wptr[g] = blocks[key]
-    s_wptr = nw + s_ptr[:-1] - s_ptr[0]
-    src += [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
-    wsrc = np.concatenate(src).astype(np.int64) if src else np.zeros(0, np.int64)
-    return g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc
+        ekey = offset[src].tobytes() + st_sigma[src].tobytes()
+        if ekey not in eblocks:
+            eblocks[ekey] = ne
+            esrc.append(src)
+            ne += lanes * m
+        g_wptr[g] = wblocks[wkey], eblocks[ekey]
+    s_wptr = nw + s_ptr[:-1]
+    wsrc += [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
+    wsrc = np.concatenate(wsrc).astype(np.int64) if wsrc else np.zeros(0, np.int64)
+    esrc = np.concatenate(esrc).astype(np.int64) if esrc else np.zeros(0, np.int64)
+    ln_idx = np.where(np.arange(len(esrc)) < s_ptr[-1], st_idx[esrc], offset[esrc])
+    ln_sigma = st_sigma[esrc].copy()
+    return g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc, ln_idx, ln_sigma
 
 
 @kernel(inline='always')

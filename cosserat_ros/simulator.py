@@ -129,20 +129,19 @@ class ClothSimulator:
         self._st_T = np.ascontiguousarray(
             np.einsum('kax,kbx->kab', frames[src, :2], frames[self._jet.st_idx, :2]))
         # the vertex pass reads the stencils in lane order (forces.lane_layout: groups of
-        # four vertices with interleaved entries, for the SIMD lanes, and weight blocks
-        # shared by groups with the same stencil templates); its stencil gradients come
-        # out in that order, so the transposed stencil points there too
-        (g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc) = _forces.lane_layout(
-            self._jet.st_ptr, self._jet.template, LANES if simd else 1)
-        ln_idx = np.empty_like(self._jet.st_idx)
-        ln_idx[pos] = self._jet.st_idx
-        ln_sigma = np.empty_like(st_sigma)
-        ln_sigma[pos] = st_sigma
+        # four vertices with interleaved entries, for the SIMD lanes; weight blocks shared
+        # by groups with the same stencil templates, and blocks of neighbour offsets and
+        # rest residuals shared by groups where those are equal); its stencil gradients
+        # come out in that order, so the transposed stencil points there too
+        (g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc, ln_idx,
+         ln_sigma) = _forces.lane_layout(self._jet.st_ptr, self._jet.template,
+                                         self._jet.st_idx, st_sigma, LANES if simd else 1)
         ln_w = np.ascontiguousarray(self._jet.st_w[:, wsrc])
         ln_uv = np.ascontiguousarray(st_uv[:, wsrc])
         # ops: the CSR stencils (st_ptr, st_idx, st_w) serve the covariant route; the
-        # vertex pass reads ln_* (uv and sigma in the st_uv, st_sigma slots) and the
-        # transposed stencil points into its entry order
+        # vertex pass reads ln_* (uv and sigma in its kernels' st_uv, st_sigma slots,
+        # ln_idx in the st_idx slot) and the transposed stencil points into its entry
+        # order
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
                      self._jet.st_w, ln_uv, ln_sigma, self._stab,
