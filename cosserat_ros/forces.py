@@ -426,7 +426,10 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     the centre, its weights and chart coordinates at ``g_wptr[g, 0] + 4 s + l`` (a block
     that groups with the same stencil templates share) and its neighbour's offset
     ``j - i`` and rest residual at ``g_wptr[g, 1] + 4 s + l`` (a block that groups with
-    the same offsets and residuals share). So the weights, chart coordinates and rest
+    the same offsets and residuals share); its gradients go to ``contrib`` from
+    ``g_wptr[g, 2]`` on, in the same order (its entries' own positions, or in the tiled
+    step a slot of its part's ring, integrator.vertex_parts). So the weights, chart
+    coordinates and rest
     residuals of one entry of the four vertices load as one vector, and the gradients
     store as one; only the positions x[j] are gathered lane by lane. The stencil loops
     have no remainder and no horizontal sums, and the per-vertex work (normal,
@@ -435,8 +438,8 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     KW = st_w.shape[1]
     W = sc.shape[2]
     r0 = ch * 5 * W          # scratch rows d_0, d_1, d_2, dn, h of this chunk (flat offsets)
-    b = g_ptr[g]
-    ns = (g_ptr[g + 1] - b) // 4 - 1
+    ns = (g_ptr[g + 1] - g_ptr[g]) // 4 - 1
+    b = g_wptr[g, 2]        # its gradients: its entries' positions, or its slot of a ring
     p0 = b + 4
     bw = g_wptr[g, 0]       # weights and chart coordinates: the group's (shared) block
     q0 = bw + 4
@@ -700,7 +703,8 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
     the same to the bit share one block: on a sheet numbered row by row and flat at rest
     the pass then streams neither indices nor residuals, only its gradients.
 
-    Returns ``g_vert`` (G, lanes), ``g_ptr`` (G+1,), ``g_wptr`` (G, 2), ``s_vert`` (S,),
+    Returns ``g_vert`` (G, lanes), ``g_ptr`` (G+1,), ``g_wptr`` (G, 3: weight block, entry
+    block, where its gradients go: here ``g_ptr[g]``, its entry positions), ``s_vert`` (S,),
     ``s_ptr`` (S+1,), ``s_wptr`` (S,), all int64; ``pos`` (K,): the position of CSR entry
     k in the entry order (a permutation); ``wsrc`` (KW,): the CSR entry whose weights fill
     each slot of the weight blocks; ``ln_idx`` (KE,) int64 and ``ln_sigma`` (KE,)."""
@@ -738,7 +742,7 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
     # and entry blocks (after the single vertices' entries: one per distinct pair of the
     # group's offsets and rest residuals)
     wblocks, eblocks = {}, {}
-    g_wptr = np.empty((len(g_vert), 2), dtype=np.int64)
+    g_wptr = np.empty((len(g_vert), 3), dtype=np.int64)
     wsrc, esrc = [], [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
     nw, ne = 0, int(s_ptr[-1])
     for g, verts in enumerate(g_vert):
@@ -755,13 +759,14 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
             eblocks[ekey] = ne
             esrc.append(src)
             ne += lanes * m
-        g_wptr[g] = wblocks[wkey], eblocks[ekey]
+        g_wptr[g, :2] = wblocks[wkey], eblocks[ekey]
     s_wptr = nw + s_ptr[:-1]
     wsrc += [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
     wsrc = np.concatenate(wsrc).astype(np.int64) if wsrc else np.zeros(0, np.int64)
     esrc = np.concatenate(esrc).astype(np.int64) if esrc else np.zeros(0, np.int64)
     ln_idx = np.where(np.arange(len(esrc)) < s_ptr[-1], st_idx[esrc], offset[esrc])
     ln_sigma = st_sigma[esrc].copy()
+    g_wptr[:, 2] = g_ptr[:-1]
     return g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, pos, wsrc, ln_idx, ln_sigma
 
 
