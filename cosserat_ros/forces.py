@@ -89,21 +89,22 @@ def _deformation_gradient(x, faces, dinv, t):
 
 
 @kernel(inline='always')
-def _corner_gradient_row(t, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
+def _corner_gradient_row(t, ts, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
     """Coordinate k (row (fa, fb) of F) of the corner gradients ``[g_1 g_2] = F S Dinv^T``
-    of face t; corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
+    of face t, into fgrad[ts] (ts = t, or the face's ring slot in the tiled step); corner
+    0 takes ``-g_1 - g_2``; written, or added (add)."""
     p0 = fa * s11 + fb * s12
     p1 = fa * s12 + fb * s22
     g1 = p0 * dinv[t, 0, 0] + p1 * dinv[t, 0, 1]
     g2 = p0 * dinv[t, 1, 0] + p1 * dinv[t, 1, 1]
     if add:
-        fgrad[t, 1, k] += g1
-        fgrad[t, 2, k] += g2
-        fgrad[t, 0, k] -= g1 + g2
+        fgrad[ts, 1, k] += g1
+        fgrad[ts, 2, k] += g2
+        fgrad[ts, 0, k] -= g1 + g2
     else:
-        fgrad[t, 1, k] = g1
-        fgrad[t, 2, k] = g2
-        fgrad[t, 0, k] = -g1 - g2
+        fgrad[ts, 1, k] = g1
+        fgrad[ts, 2, k] = g2
+        fgrad[ts, 0, k] = -g1 - g2
 
 
 @kernel(inline='always')
@@ -111,17 +112,18 @@ def _corner_gradients(x, faces, dinv, t, s11, s12, s22, fgrad, add):
     """dE/dx at the three corners of face t for the stress-times-area S (face chart):
     ``[g_1 g_2] = F S Dinv^T``, corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
     f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
-    _corner_gradient_row(t, 0, f00, f01, s11, s12, s22, dinv, fgrad, add)
-    _corner_gradient_row(t, 1, f10, f11, s11, s12, s22, dinv, fgrad, add)
-    _corner_gradient_row(t, 2, f20, f21, s11, s12, s22, dinv, fgrad, add)
+    _corner_gradient_row(t, t, 0, f00, f01, s11, s12, s22, dinv, fgrad, add)
+    _corner_gradient_row(t, t, 1, f10, f11, s11, s12, s22, dinv, fgrad, add)
+    _corner_gradient_row(t, t, 2, f20, f21, s11, s12, s22, dinv, fgrad, add)
 
 
 @kernel(inline='always')
-def _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
+def _face_membrane(t, ts, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
     """Face t: Green strain eps[t] = (11, 12, 22) of the deformation gradient F (Eq. 17),
     stored if ``store_eps`` (a constant at every call: the step's vertex pass does not
-    need it), and the membrane's corner gradients fgrad[t] (3,3) = d(area W_m)/dx_corner,
-    with ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
+    need it), and the membrane's corner gradients fgrad[ts] (3,3) = d(area W_m)/dx_corner
+    (ts = t, or the face's ring slot in the tiled step), with
+    ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
     f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
     e11 = 0.5 * (f00 * f00 + f10 * f10 + f20 * f20 - 1.0)
     e12 = 0.5 * (f00 * f01 + f10 * f11 + f20 * f21)
@@ -135,9 +137,9 @@ def _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
     s11 = c * (tr + 2.0 * e11)
     s12 = c * (2.0 * e12)
     s22 = c * (tr + 2.0 * e22)
-    _corner_gradient_row(t, 0, f00, f01, s11, s12, s22, dinv, fgrad, False)
-    _corner_gradient_row(t, 1, f10, f11, s11, s12, s22, dinv, fgrad, False)
-    _corner_gradient_row(t, 2, f20, f21, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(t, ts, 0, f00, f01, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(t, ts, 1, f10, f11, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(t, ts, 2, f20, f21, s11, s12, s22, dinv, fgrad, False)
 
 
 @kernel(parallel=True)
@@ -146,7 +148,7 @@ def face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad):
     (:func:`_face_membrane`). The step runs this in the vertex pass when phi = 0; with a
     coupling, the vertex pass reads eps, so the faces go first in a pass of their own."""
     for t in nb.prange(faces.shape[0]):
-        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
+        _face_membrane(t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
 
 
 @kernel(inline='always')
@@ -593,7 +595,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
 def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
                   st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
                   phi, scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area,
-                  zeta, fc_ptr, fc_face, with_faces, fgrad):
+                  zeta, fc_ptr, fc_face, fc_slot, with_faces, fgrad):
     """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_pass, and tile by
     tile integrator.vertex_parts): the vertex term for its lane groups (four vertices at
     a time, :func:`_vertex_lanes`) and its single vertices (stencil sizes that do not fill
@@ -607,8 +609,9 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
 
     With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
     ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
-    step. Only valid when the vertex terms do not read eps (phi = 0); the strains are
-    then not stored.
+    step; their corner gradients go to the rows ``fc_slot`` of fgrad (fc_face itself, or
+    ring slots in the tiled step). Only valid when the vertex terms do not read eps
+    (phi = 0); the strains are then not stored.
 
     ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
     gets that body's ``noalias`` arrays; a plain call was 5-10% slower."""
@@ -621,8 +624,8 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     nsv = s_vert.shape[0]
     for q in range(nb.uint64(fc_ptr[ch]), nb.uint64(fc_ptr[ch + 1] if with_faces else
                                                   fc_ptr[ch])):
-        _face_membrane(nb.uint64(fc_face[q]), x, faces, dinv, face_area, zeta, eps, fgrad,
-                       False)
+        _face_membrane(nb.uint64(fc_face[q]), nb.uint64(fc_slot[q]), x, faces, dinv,
+                       face_area, zeta, eps, fgrad, False)
     gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
         _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
@@ -656,7 +659,7 @@ def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, 
     than run the force a second time; ``scratch`` (R, 5, S) gives each of its R work
     items a row."""
     for t in nb.prange(faces.shape[0]):
-        _face_membrane(t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
+        _face_membrane(t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
     n = x.shape[0]
     nch = scratch.shape[0]
     chunk = (n + nch - 1) // nch

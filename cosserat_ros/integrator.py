@@ -62,7 +62,7 @@ def vertex_pass(x, ops, mat, work, with_faces):
     all chunks in parallel, each with its own scratch row."""
     (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
-     ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _) = ops
+     ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _, _, _) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     nch = tile_ch[tile_ch.shape[0] - 1]
@@ -73,7 +73,7 @@ def vertex_pass(x, ops, mat, work, with_faces):
                       g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv, ln_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
                       contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                      fc_ptr, fc_face, with_faces, fgrad)
+                      fc_ptr, fc_face, fc_face, with_faces, fgrad)
 
 
 @kernel()
@@ -114,13 +114,14 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
     is safe: the vertices and faces that read x[j] are exactly those that contribute to
     it, all done, and all in this part. The vertices on the seam between parts (the last
     range of ops[30]) are left for :func:`integrate`. The lane groups' stencil gradients
-    go where ops[33] says and are gathered from ops[34] (mostly rings that stay in cache,
+    go where ops[33] says and are gathered from ops[34], the faces' corner gradients go
+    to the rows ops[35] and are gathered from ops[36] (mostly rings that stay in cache,
     ClothSimulator._rings). Writes (external work, dissipation, bad vertices) of part p
     to pacc[p]."""
     (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      tr_ptr, _, vf_ptr, vf_face, vf_corner, vf_K, g_vert, g_ptr, _, s_vert, s_ptr,
      s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile, g_wptr,
-     tr_slot) = ops
+     tr_slot, fc_slot, vf_slot) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     nch = tile_ch[tile_ch.shape[0] - 1]
@@ -136,9 +137,9 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
             _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
                           ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area,
                           ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
-                          faces, dinv, face_area, zeta, fc_ptr, fc_face, True, fgrad)
+                          faces, dinv, face_area, zeta, fc_ptr, fc_face, fc_slot, True, fgrad)
             if ch + 1 == tile_ch[t + 1]:
-                dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_face,
+                dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_slot,
                                             vf_corner, fgrad, tr_ptr, tr_slot, contrib, x, v,
                                             force, f_applied, mass, damp, pinned, gravity, dt,
                                             vmax2)
@@ -183,8 +184,10 @@ def integrate(ops, work_arrays, gather, seam, x, v, force, f_applied, mass, damp
     ``gather`` the last stage of the variational force (the gather of corner and stencil
     gradients) runs in the same pass and fills ``force``; otherwise ``force`` is read as
     given."""
-    tr_ptr, vf_ptr, vf_face, vf_corner = ops[13], ops[15], ops[16], ops[17]
-    tr_slot = ops[34] if seam else ops[14]      # the tiled step's slots (vertex_parts)
+    tr_ptr, vf_ptr, vf_corner = ops[13], ops[15], ops[17]
+    # the tiled step's slots (vertex_parts)
+    tr_slot = ops[34] if seam else ops[14]
+    vf_face = ops[36] if seam else ops[16]
     gl_ptr, gl_vert = ops[30], ops[31]
     q0 = gl_ptr[gl_ptr.shape[0] - 2] if seam else 0
     q1 = gl_ptr[gl_ptr.shape[0] - 1] if seam else x.shape[0]

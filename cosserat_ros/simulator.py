@@ -232,64 +232,81 @@ class ClothSimulator:
         np.cumsum(np.bincount(key, minlength=ntile + 1), out=gl_ptr[1:])
         plan = (tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile)
         if not tiled:
-            return plan + (self._ops[21], self._ops[14])
-        return plan + self._rings(nch, tile_ch, part_tile, key)
+            return plan + (self._ops[21], self._ops[14], fc_face, self.mesh.vf_face)
+        return plan + self._rings(nch, tile_ch, part_tile, key, fc_ptr, fc_face)
 
-    def _rings(self, nch, tile_ch, part_tile, key):
-        """Where the tiled step writes the lane groups' stencil gradients (``contrib``):
-        ``g_wptr`` with column 2 replaced, and the transposed stencil's slots to match.
+    def _rings(self, nch, tile_ch, part_tile, key, fc_ptr, fc_face):
+        """Where the tiled step writes its gradients, and where its gathers read them:
+        the lane groups' stencil gradients (``contrib``: ``g_wptr`` with column 2
+        replaced, the transposed stencil's slots to match) and the faces' corner
+        gradients (rows of ``fgrad``: ``fc_slot`` per face in chunk order, ``vf_slot``
+        per vertex-face pair).
 
-        A group whose gradients are all gathered inside its part (every target vertex's
-        contributors lie in that part, ``key`` < T) is dead once the last of those
-        targets' tiles has gathered them; its slot is reused after that. Each part's such
-        groups go, in the order the part writes them, round a ring of R entries, R the
-        largest span (in entries written) from a group's slot to the end of its last
-        reader's tile. So the step writes its gradients into a few hundred kB that stay in
-        the core's cache, instead of streaming ~460 B per vertex out to memory and back
-        (each store's line is read first). The groups with a target on the seam
-        (gathered after every part is done), the 5% read the latest after they are
-        written, and the single vertices keep slots of their own. The forces are the same
-        numbers, gathered in the same order."""
+        A group (a face) whose gradients are all gathered inside its part (every target
+        vertex's contributors lie in that part, ``key`` < T) is dead once the last of
+        those targets' tiles has gathered them; its slot is reused after that. Each part's
+        such groups (faces) go, in the order the part writes them, round a ring
+        (:meth:`_ring_slots`). So the step writes its gradients into a few hundred kB that
+        stay in the core's cache, instead of streaming ~600 B per vertex out to memory and
+        back (each store's line is read first). Those with a target on the seam (gathered
+        after every part is done), the 5% read the latest after they are written, and the
+        single vertices keep slots of their own. The forces are the same numbers,
+        gathered in the same order."""
         g_vert, g_ptr, g_wptr = self._ops[19], self._ops[20], self._ops[21]
         st_ptr, st_idx = self._jet.st_ptr, self._jet.st_idx
-        K = len(st_idx)
-        ntile = len(tile_ch) - 1
-        size = np.diff(g_ptr)
-        if len(g_vert) == 0:
-            return g_wptr, self._ops[14]
-        # the tile each group is written in, its part, and the last tile reading it
-        g_tile = (np.searchsorted(tile_ch, np.arange(nch), 'right') - 1)[
-            np.arange(len(g_vert)) // -(-len(g_vert) // nch)]
-        g_part = np.searchsorted(part_tile, g_tile, 'right') - 1
-        g_last = np.maximum.reduceat(key[st_idx], st_ptr[:-1])[g_vert].max(axis=1)
-        ring = g_last < ntile
-        # the few groups read much later than most (lanes far apart, e.g. along a
-        # boundary) would set R alone: they keep slots of their own too
+        faces, vf_face = self.mesh.faces, self.mesh.vf_face
+        K, m = len(st_idx), len(faces)
+        tile_of_chunk = np.searchsorted(tile_ch, np.arange(nch), 'right') - 1
+        w, tr = g_wptr, self._ops[14]
+        if len(g_vert):
+            size = np.diff(g_ptr)
+            # the tile each group is written in and the last tile reading it
+            g_tile = tile_of_chunk[np.arange(len(g_vert)) // -(-len(g_vert) // nch)]
+            g_last = np.maximum.reduceat(key[st_idx], st_ptr[:-1])[g_vert].max(axis=1)
+            # after the single vertices' entries, which keep their slots
+            base, end = self._place(size, g_tile, g_last, part_tile, int(g_ptr[0]))
+            if end <= K:        # else no room to spare (a tiny mesh): entry positions
+                w = g_wptr.copy()
+                w[:, 2] = base
+                # position -> slot, for the transposed stencil (ops[14] holds positions)
+                slot = np.arange(K, dtype=np.int64)
+                first = np.repeat(g_ptr[:-1], size)
+                slot[first[0]:] = (np.repeat(base, size) + np.arange(first.size)
+                                   - (first - first[0]))
+                tr = slot[self._ops[14]]
+        f_tile = tile_of_chunk[np.repeat(np.arange(nch), np.diff(fc_ptr))]
+        base, end = self._place(np.ones(m, dtype=np.int64), f_tile,
+                                key[faces[fc_face]].max(axis=1), part_tile, 0)
+        if end > m:
+            return w, tr, fc_face, vf_face
+        slot_of_face = np.empty(m, dtype=np.int64)
+        slot_of_face[fc_face] = base
+        return w, tr, base, slot_of_face[vf_face]
+
+    def _place(self, size, tile, last, part_tile, start):
+        """Slots for items (lane groups, faces) of ``size`` entries, written in order, in
+        tiles ``tile``, last read at the end of tile ``last`` (T: the seam): those read
+        inside their part, but for the 5% read the latest, go round a ring per part; the
+        others get slots of their own from ``start`` on. Returns (slots, end)."""
+        ntile = int(part_tile[-1])
+        part = np.searchsorted(part_tile, tile, 'right') - 1
+        ring = last < ntile
+        # the few read much later than most (lanes far apart, e.g. along a boundary)
+        # would set the ring's length alone
         if ring.any():
-            ring &= g_last - g_tile <= int(np.quantile((g_last - g_tile)[ring], 0.95))
-        base = np.empty(len(g_vert), dtype=np.int64)
-        # slots of their own after the single vertices' entries (which keep theirs)
+            ring &= last - tile <= int(np.quantile((last - tile)[ring], 0.95))
+        base = np.empty(len(size), dtype=np.int64)
         own = np.nonzero(~ring)[0]
-        end = int(g_ptr[0])
-        base[own] = end + np.cumsum(size[own]) - size[own]
-        end += int(size[own].sum())
+        base[own] = start + np.cumsum(size[own]) - size[own]
+        end = start + int(size[own].sum())
         for p in range(len(part_tile) - 1):
             end = -(-end // 8) * 8          # each ring starts on a cache line of its own
-            gs = np.nonzero(ring & (g_part == p))[0]
-            if len(gs) == 0:
-                continue
-            lin = self._ring_slots(size[gs], g_tile[gs], g_last[gs])
-            base[gs] = end + lin[0]
-            end += lin[1]
-        if end > K:             # no room to spare (a tiny mesh): the entries' positions
-            return g_wptr, self._ops[14]
-        w = g_wptr.copy()
-        w[:, 2] = base
-        # position -> slot, for the transposed stencil (ops[14] holds positions)
-        slot = np.arange(K, dtype=np.int64)
-        first = np.repeat(g_ptr[:-1], size)
-        slot[first[0]:] = np.repeat(base, size) + np.arange(first.size) - (first - first[0])
-        return w, slot[self._ops[14]]
+            q = np.nonzero(ring & (part == p))[0]
+            if len(q):
+                lin, R = self._ring_slots(size[q], tile[q], last[q])
+                base[q] = end + lin
+                end += R
+        return base, end
 
     @staticmethod
     def _ring_slots(size, tile, last):
@@ -304,13 +321,16 @@ class ClothSimulator:
         while True:
             if R >= total:
                 return np.cumsum(size) - size, total
-            lin = np.empty(len(size), dtype=np.int64)
-            at = 0
-            for q, m in enumerate(size.tolist()):
-                if at % R + m > R:
-                    at += R - at % R
-                lin[q] = at
-                at += m
+            if size.min() == step:      # equal sizes (faces): R is a multiple, no gaps
+                lin = np.cumsum(size) - size
+            else:
+                lin = np.empty(len(size), dtype=np.int64)
+                at = 0
+                for q, m in enumerate(size.tolist()):
+                    if at % R + m > R:
+                        at += R - at % R
+                    lin[q] = at
+                    at += m
             # entries written up to the end of each tile, and the span each group needs
             done = np.maximum.accumulate(lin + size)
             upto = done[np.searchsorted(tile, last, 'right') - 1]

@@ -108,17 +108,27 @@ def test_ring_slots_hold_every_gradient_until_its_last_reader(name, tile):
     owner = np.full(len(sim._jet.st_idx), -1)
     group_of = np.searchsorted(g_ptr, pos_of, 'right') - 1   # -1: a single vertex's entry
     assert np.all(owner[:g_ptr[0]] == -1) and np.all(base >= g_ptr[0])
+    # the faces' corner gradients: rows fc_slot of fgrad, read through vf_slot
+    fc_ptr, fc_face, fc_slot, vf_slot = (sim._ops[28], sim._ops[29], sim._ops[35],
+                                         sim._ops[36])
+    f_tile = np.searchsorted(tile_ch, np.repeat(np.arange(nch), np.diff(fc_ptr)), 'right') - 1
+    face_owner = np.full(sim.mesh.n_faces, -1)
+    vf_ptr, vf_face = sim.mesh.vf_ptr, sim.mesh.vf_face
     for t in range(len(tile_ch)):                          # the last one: the seam
         for g in np.nonzero(g_tile == t)[0]:
             owner[base[g]:base[g] + size[g]] = g
+        face_owner[fc_slot[f_tile == t]] = fc_face[f_tile == t]
         for j in gl_vert[gl_ptr[t]:gl_ptr[t + 1]]:
             e = np.arange(tr_ptr[j], tr_ptr[j + 1])
             g = group_of[e]
             assert np.array_equal(owner[slot_of[e][g >= 0]], g[g >= 0])
             assert np.array_equal(slot_of[e][g < 0], pos_of[e][g < 0])
+            q = np.arange(vf_ptr[j], vf_ptr[j + 1])
+            assert np.array_equal(face_owner[vf_slot[q]], vf_face[q])
     # slots are reused (without the rings: 1.0; an irregular sheet's lane groups mix
     # vertices farther apart, so more of them keep slots of their own)
     assert (base + size).max() < (0.7 if name == 'regular' else 0.9) * g_ptr[-1]
+    assert fc_slot.max() < 0.7 * sim.mesh.n_faces
 
 
 def test_large_meshes_step_tiled_and_coupled_ones_do_not(monkeypatch):
