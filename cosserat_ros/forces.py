@@ -854,6 +854,30 @@ def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
     return -g0, -g1, -g2
 
 
+@kernel(inline='always')
+def _gather_rows(j, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib):
+    """:func:`_gather` for the tiled step, over 32-bit indices: the corner gradients as rows
+    ``frow`` (3 m, 3) of fgrad, ``vf_row`` = 3 slot + corner per vertex-face pair, and the
+    stencil gradients' slots ``tr_slot``, both uint32 (the gather streams 4 bytes per
+    index instead of 8, and one index per face instead of two)."""
+    j1 = nb.uint64(j + 1)
+    j = nb.uint64(j)
+    g0 = 0.0
+    g1 = 0.0
+    g2 = 0.0
+    for q in range(nb.uint64(vf_ptr[j]), nb.uint64(vf_ptr[j1])):
+        r = nb.uint64(vf_row[q])
+        g0 += frow[r, 0]
+        g1 += frow[r, 1]
+        g2 += frow[r, 2]
+    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
+        k = nb.uint64(tr_slot[q])
+        g0 += contrib[0, k]
+        g1 += contrib[1, k]
+        g2 += contrib[2, k]
+    return -g0, -g1, -g2
+
+
 @kernel(parallel=True)
 def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, force):
     """force[j] = -dE/dx_j (n,3) [N]."""

@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .forces import (_gather, _vertex_chunk, covariant_forces, face_coupling,
+from .forces import (_gather, _gather_rows, _vertex_chunk, covariant_forces, face_coupling,
                      face_membrane, gather_forces)
 
 METHOD_VARIATIONAL = 0
@@ -77,8 +77,8 @@ def vertex_pass(x, ops, mat, work, with_faces):
 
 
 @kernel()
-def _gather_update(q0, q1, gl_vert, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
-                   contrib, x, v, force, f_applied, mass, damp, pinned, gravity, dt, vmax2):
+def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib, x, v,
+                   force, f_applied, mass, damp, pinned, gravity, dt, vmax2):
     """Gather (force = -dE/dx) and update (Eq. 29) the vertices ``gl_vert[q0:q1]`` one after
     the other; returns (external work, dissipation, bad vertices). A plain call from
     :func:`vertex_parts`, not inlined: inlined, its code slowed the vertex code around it
@@ -88,7 +88,7 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, t
     b = 0
     for q in range(q0, q1):
         i = gl_vert[q]
-        f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib)
+        f0, f1, f2 = _gather_rows(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
         force[i, 0] = f0
         force[i, 1] = f1
         force[i, 2] = f2
@@ -121,10 +121,11 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
     (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      tr_ptr, _, vf_ptr, vf_face, vf_corner, vf_K, g_vert, g_ptr, _, s_vert, s_ptr,
      s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile, g_wptr,
-     tr_slot, fc_slot, vf_slot) = ops
+     tr_slot, fc_slot, vf_row) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     nch = tile_ch[tile_ch.shape[0] - 1]
+    frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
     for p in nb.prange(part_tile.shape[0] - 1):
         w = 0.0
         d = 0.0
@@ -139,10 +140,9 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
                           ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
                           faces, dinv, face_area, zeta, fc_ptr, fc_face, fc_slot, True, fgrad)
             if ch + 1 == tile_ch[t + 1]:
-                dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_slot,
-                                            vf_corner, fgrad, tr_ptr, tr_slot, contrib, x, v,
-                                            force, f_applied, mass, damp, pinned, gravity, dt,
-                                            vmax2)
+                dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_row,
+                                            frow, tr_ptr, tr_slot, contrib, x, v, force,
+                                            f_applied, mass, damp, pinned, gravity, dt, vmax2)
                 w += dw
                 d += dd
                 b += db
@@ -176,27 +176,18 @@ def variational_forces(x, ops, mat, work, force):
 
 
 @kernel(parallel=True)
-def integrate(ops, work_arrays, gather, seam, x, v, force, f_applied, mass, damp, pinned,
-              gravity, dt, vmax2, acc):
-    """One symplectic Euler update in place of every vertex, or with ``seam`` of the seam
-    vertices of the tiled step only (``gl_vert[gl_ptr[-2]:]``, ops[30], ops[31]); returns
-    the number of them that went bad (non-finite or faster than sqrt(vmax2)). With
-    ``gather`` the last stage of the variational force (the gather of corner and stencil
-    gradients) runs in the same pass and fills ``force``; otherwise ``force`` is read as
-    given."""
-    tr_ptr, vf_ptr, vf_corner = ops[13], ops[15], ops[17]
-    # the tiled step's slots (vertex_parts)
-    tr_slot = ops[34] if seam else ops[14]
-    vf_face = ops[36] if seam else ops[16]
-    gl_ptr, gl_vert = ops[30], ops[31]
-    q0 = gl_ptr[gl_ptr.shape[0] - 2] if seam else 0
-    q1 = gl_ptr[gl_ptr.shape[0] - 1] if seam else x.shape[0]
+def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinned, gravity,
+              dt, vmax2, acc):
+    """One symplectic Euler update in place of every vertex; returns the number of them
+    that went bad (non-finite or faster than sqrt(vmax2)). With ``gather`` the last stage
+    of the variational force (the gather of corner and stencil gradients) runs in the same
+    pass and fills ``force``; otherwise ``force`` is read as given."""
+    tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
     fgrad, contrib = work_arrays[5], work_arrays[6]
     work = 0.0
     diss = 0.0
     bad = 0
-    for q in nb.prange(q1 - q0):
-        i = gl_vert[q0 + np.int64(q)] if seam else q0 + np.int64(q)
+    for i in nb.prange(x.shape[0]):
         if gather:
             f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
                                  contrib)
@@ -207,6 +198,36 @@ def integrate(ops, work_arrays, gather, seam, x, v, force, f_applied, mass, damp
             f0 = force[i, 0]
             f1 = force[i, 1]
             f2 = force[i, 2]
+        w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, gravity[0],
+                          gravity[1], gravity[2], vmax2)
+        work += w
+        diss += d
+        bad += b
+    acc[0] += work
+    acc[1] += diss
+    return bad
+
+
+@kernel(parallel=True)
+def integrate_seam(ops, work_arrays, x, v, force, f_applied, mass, damp, pinned, gravity, dt,
+                   vmax2, acc):
+    """:func:`integrate` with the gather, for the seam vertices of the tiled step only
+    (``gl_vert[gl_ptr[-2]:]``, ops[30], ops[31]), reading the gradients where
+    :func:`vertex_parts` put them (ops[34], ops[36])."""
+    tr_ptr, vf_ptr, gl_ptr, gl_vert = ops[13], ops[15], ops[30], ops[31]
+    tr_slot, vf_row = ops[34], ops[36]
+    fgrad, contrib = work_arrays[5], work_arrays[6]
+    frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
+    q0 = gl_ptr[gl_ptr.shape[0] - 2]
+    work = 0.0
+    diss = 0.0
+    bad = 0
+    for q in nb.prange(gl_ptr[gl_ptr.shape[0] - 1] - q0):
+        i = gl_vert[q0 + np.int64(q)]
+        f0, f1, f2 = _gather_rows(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
+        force[i, 0] = f0
+        force[i, 1] = f1
+        force[i, 2] = f2
         w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, gravity[0],
                           gravity[1], gravity[2], vmax2)
         work += w
@@ -231,7 +252,7 @@ def run_variational(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vm
     update). Large meshes step with :func:`run_tiled` instead."""
     for s in range(nsteps):
         variational_stages(x, ops, mat, work)
-        if integrate(ops, work, True, False, x, v, force, f_applied, mass, damp, pinned,
+        if integrate(ops, work, True, x, v, force, f_applied, mass, damp, pinned,
                      gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps
@@ -250,8 +271,8 @@ def run_tiled(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
     for s in range(nsteps):
         vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gravity, dt,
                      vmax2, pacc)
-        bad = integrate(ops, work, True, True, x, v, force, f_applied, mass, damp, pinned,
-                        gravity, dt, vmax2, acc)
+        bad = integrate_seam(ops, work, x, v, force, f_applied, mass, damp, pinned,
+                             gravity, dt, vmax2, acc)
         for p in range(pacc.shape[0]):
             acc[0] += pacc[p, 0]
             acc[1] += pacc[p, 1]
@@ -269,7 +290,7 @@ def run_covariant(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax
     never compiles it."""
     for s in range(nsteps):
         covariant_forces(x, ops, cov, mat, cwork, force)
-        if integrate(ops, work, False, False, x, v, force, f_applied, mass, damp, pinned,
+        if integrate(ops, work, False, x, v, force, f_applied, mass, damp, pinned,
                      gravity, dt, vmax2, acc) > 0:
             return s
     return nsteps

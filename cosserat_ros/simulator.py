@@ -187,7 +187,7 @@ class ClothSimulator:
 
     # ------------------------------------------------------------------ set-up helpers
     def _schedule(self, nch: int, tile_vertices: int, parts: int, tiled: bool = True):
-        """The step's work plan (integrator.vertex_parts), ops[27:35]:
+        """The step's work plan (integrator.vertex_parts), ops[27:37]:
 
         * ``tile_ch`` (T+1,): chunk boundaries of the tiles (a tile is a run of
           ``tile_vertices / VERTEX_CHUNK`` chunks; no tile spans two parts);
@@ -200,9 +200,10 @@ class ClothSimulator:
           rest), a permutation of all vertices;
         * ``part_tile`` (parts+1,): the tiles of each part (equal runs of chunks; one part
           per thread);
-        * ``g_wptr``, ``tr_slot``: ops[21] and ops[14] for the tiled step, ops[33:35]
-          (``tiled`` only; otherwise the same arrays): where each lane group's stencil
-          gradients go and where the gather reads them (:meth:`_rings`).
+        * ``g_wptr``, ``tr_slot``, ``fc_slot``, ``vf_row``, ops[33:37]: where the tiled step
+          writes each lane group's stencil gradients and each face's corner gradients, and
+          where its gathers read them (:meth:`_rings`; without ``tiled`` ops[21], an empty
+          array, fc_face and an empty array).
         """
         n, faces = self.mesh.n_vertices, self.mesh.faces
         chunk = _forces.chunk_of_vertex(n, nch, self._ops[19], self._ops[22])
@@ -231,16 +232,17 @@ class ClothSimulator:
         gl_ptr = np.zeros(ntile + 2, dtype=np.int64)
         np.cumsum(np.bincount(key, minlength=ntile + 1), out=gl_ptr[1:])
         plan = (tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile)
-        if not tiled:
-            return plan + (self._ops[21], self._ops[14], fc_face, self.mesh.vf_face)
+        if not tiled:       # the same types, so that the kernels compile once
+            none = np.zeros(0, dtype=np.uint32)
+            return plan + (self._ops[21], none, fc_face, none)
         return plan + self._rings(nch, tile_ch, part_tile, key, fc_ptr, fc_face)
 
     def _rings(self, nch, tile_ch, part_tile, key, fc_ptr, fc_face):
         """Where the tiled step writes its gradients, and where its gathers read them:
         the lane groups' stencil gradients (``contrib``: ``g_wptr`` with column 2
         replaced, the transposed stencil's slots to match) and the faces' corner
-        gradients (rows of ``fgrad``: ``fc_slot`` per face in chunk order, ``vf_slot``
-        per vertex-face pair).
+        gradients (rows of ``fgrad``: ``fc_slot`` per face in chunk order, ``vf_row`` =
+        3 slot + corner per vertex-face pair). The gathers' two index arrays are uint32.
 
         A group (a face) whose gradients are all gathered inside its part (every target
         vertex's contributors lie in that part, ``key`` < T) is dead once the last of
@@ -278,10 +280,12 @@ class ClothSimulator:
         base, end = self._place(np.ones(m, dtype=np.int64), f_tile,
                                 key[faces[fc_face]].max(axis=1), part_tile, 0)
         if end > m:
-            return w, tr, fc_face, vf_face
+            base = np.arange(m, dtype=np.int64)[fc_face]
         slot_of_face = np.empty(m, dtype=np.int64)
         slot_of_face[fc_face] = base
-        return w, tr, base, slot_of_face[vf_face]
+        # 32-bit: the gathers stream 4 bytes per index, and one index per face
+        vf_row = 3 * slot_of_face[vf_face] + self.mesh.vf_corner
+        return w, tr.astype(np.uint32), base, vf_row.astype(np.uint32)
 
     def _place(self, size, tile, last, part_tile, start):
         """Slots for items (lane groups, faces) of ``size`` entries, written in order, in

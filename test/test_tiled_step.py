@@ -101,16 +101,17 @@ def test_ring_slots_hold_every_gradient_until_its_last_reader(name, tile):
     # must still hold the group that wrote that entry, and the rings must really recycle
     sim = _sim(grid_mesh(41, 37, pattern=name, seed=3), tile, 2, True)
     g_ptr, tile_ch, gl_ptr, gl_vert = sim._ops[20], sim._ops[27], sim._ops[30], sim._ops[31]
-    base, slot_of, pos_of = sim._ops[33][:, 2], sim._ops[34], sim._ops[14]
+    base, slot_of, pos_of = sim._ops[33][:, 2], sim._ops[34].astype(np.int64), sim._ops[14]
     tr_ptr, nch, ng = sim._jet.tr_ptr, tile_ch[-1], len(g_ptr) - 1
     size = np.diff(g_ptr)
     g_tile = np.searchsorted(tile_ch, np.arange(ng) // -(-ng // nch), 'right') - 1
     owner = np.full(len(sim._jet.st_idx), -1)
     group_of = np.searchsorted(g_ptr, pos_of, 'right') - 1   # -1: a single vertex's entry
     assert np.all(owner[:g_ptr[0]] == -1) and np.all(base >= g_ptr[0])
-    # the faces' corner gradients: rows fc_slot of fgrad, read through vf_slot
-    fc_ptr, fc_face, fc_slot, vf_slot = (sim._ops[28], sim._ops[29], sim._ops[35],
-                                         sim._ops[36])
+    # the faces' corner gradients: rows fc_slot of fgrad, read as row 3 slot + corner
+    fc_ptr, fc_face, fc_slot, vf_row = (sim._ops[28], sim._ops[29], sim._ops[35],
+                                        sim._ops[36].astype(np.int64))
+    assert np.array_equal(vf_row % 3, sim.mesh.vf_corner)
     f_tile = np.searchsorted(tile_ch, np.repeat(np.arange(nch), np.diff(fc_ptr)), 'right') - 1
     face_owner = np.full(sim.mesh.n_faces, -1)
     vf_ptr, vf_face = sim.mesh.vf_ptr, sim.mesh.vf_face
@@ -124,7 +125,7 @@ def test_ring_slots_hold_every_gradient_until_its_last_reader(name, tile):
             assert np.array_equal(owner[slot_of[e][g >= 0]], g[g >= 0])
             assert np.array_equal(slot_of[e][g < 0], pos_of[e][g < 0])
             q = np.arange(vf_ptr[j], vf_ptr[j + 1])
-            assert np.array_equal(face_owner[vf_slot[q]], vf_face[q])
+            assert np.array_equal(face_owner[vf_row[q] // 3], vf_face[q])
     # slots are reused (without the rings: 1.0; an irregular sheet's lane groups mix
     # vertices farther apart, so more of them keep slots of their own)
     assert (base + size).max() < (0.7 if name == 'regular' else 0.9) * g_ptr[-1]
