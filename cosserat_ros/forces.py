@@ -828,6 +828,18 @@ def face_coupling(x, faces, dinv, face_area, K, cstress, fgrad):
 
 
 @kernel(inline='always')
+def _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2):
+    """(g0, g1, g2) plus the stencil gradients of every vertex whose jet uses x_j (the
+    transposed stencil ``tr_slot[tr_ptr[j]:tr_ptr[j1]]``, j1 = j + 1, both unsigned)."""
+    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
+        k = nb.uint64(tr_slot[q])
+        g0 += contrib[0, k]
+        g1 += contrib[1, k]
+        g2 += contrib[2, k]
+    return g0, g1, g2
+
+
+@kernel(inline='always')
 def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
     """-dE/dx_j: corner gradients of the incident faces plus the stencil gradients of every
     vertex whose jet uses x_j (the transposed stencil).
@@ -846,11 +858,7 @@ def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
         g0 += fgrad[t, c, 0]
         g1 += fgrad[t, c, 1]
         g2 += fgrad[t, c, 2]
-    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
-        k = nb.uint64(tr_slot[q])
-        g0 += contrib[0, k]
-        g1 += contrib[1, k]
-        g2 += contrib[2, k]
+    g0, g1, g2 = _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2)
     return -g0, -g1, -g2
 
 
@@ -870,11 +878,7 @@ def _gather_rows(j, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib):
         g0 += frow[r, 0]
         g1 += frow[r, 1]
         g2 += frow[r, 2]
-    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
-        k = nb.uint64(tr_slot[q])
-        g0 += contrib[0, k]
-        g1 += contrib[1, k]
-        g2 += contrib[2, k]
+    g0, g1, g2 = _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2)
     return -g0, -g1, -g2
 
 

@@ -81,8 +81,9 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contr
                    force, f_applied, mass, damp, pinned, gravity, dt, vmax2):
     """Gather (force = -dE/dx) and update (Eq. 29) the vertices ``gl_vert[q0:q1]`` one after
     the other; returns (external work, dissipation, bad vertices). A plain call from
-    :func:`vertex_parts`, not inlined: inlined, its code slowed the vertex code around it
-    by ~5% (register pressure)."""
+    :func:`vertex_parts` (once per tile) and :func:`integrate_seam` (once per vertex), not
+    inlined: inlined, its code slowed the vertex code around it by ~5% (register
+    pressure)."""
     w = 0.0
     d = 0.0
     b = 0
@@ -215,7 +216,6 @@ def integrate_seam(ops, work_arrays, x, v, force, f_applied, mass, damp, pinned,
     (``gl_vert[gl_ptr[-2]:]``, ops[30], ops[31]), reading the gradients where
     :func:`vertex_parts` put them (ops[34], ops[36])."""
     tr_ptr, vf_ptr, gl_ptr, gl_vert = ops[13], ops[15], ops[30], ops[31]
-    tr_slot, vf_row = ops[34], ops[36]
     fgrad, contrib = work_arrays[5], work_arrays[6]
     frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
     q0 = gl_ptr[gl_ptr.shape[0] - 2]
@@ -223,13 +223,10 @@ def integrate_seam(ops, work_arrays, x, v, force, f_applied, mass, damp, pinned,
     diss = 0.0
     bad = 0
     for q in nb.prange(gl_ptr[gl_ptr.shape[0] - 1] - q0):
-        i = gl_vert[q0 + np.int64(q)]
-        f0, f1, f2 = _gather_rows(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
-        force[i, 0] = f0
-        force[i, 1] = f1
-        force[i, 2] = f2
-        w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, gravity[0],
-                          gravity[1], gravity[2], vmax2)
+        q1 = q0 + np.int64(q)
+        w, d, b = _gather_update(q1, q1 + 1, gl_vert, vf_ptr, ops[36], frow, tr_ptr, ops[34],
+                                 contrib, x, v, force, f_applied, mass, damp, pinned, gravity,
+                                 dt, vmax2)
         work += w
         diss += d
         bad += b
