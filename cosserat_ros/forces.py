@@ -431,11 +431,10 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     the same offsets and residuals share); its gradients go to ``contrib`` from
     ``g_wptr[g, 2]`` on, in the same order (its entries' own positions, or in the tiled
     step a slot of its part's ring, integrator.vertex_parts). So the weights, chart
-    coordinates and rest
-    residuals of one entry of the four vertices load as one vector, and the gradients
-    store as one; only the positions x[j] are gathered lane by lane. The stencil loops
-    have no remainder and no horizontal sums, and the per-vertex work (normal,
-    resultants, adjoint) is shared four ways."""
+    coordinates and rest residuals of one entry of the four vertices load as one vector,
+    and the gradients store as one; only the positions x[j] are gathered lane by lane.
+    The stencil loops have no remainder and no horizontal sums, and the per-vertex work
+    (normal, resultants, adjoint) is shared four ways."""
     K = contrib.shape[1]     # entries (ln_idx and ln_sigma hold blocks, maybe fewer)
     KW = st_w.shape[1]
     W = sc.shape[2]
@@ -746,7 +745,8 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
     # group's offsets and rest residuals)
     wblocks, eblocks = {}, {}
     g_wptr = np.empty((len(g_vert), 3), dtype=np.int64)
-    wsrc, esrc = [], [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
+    s_src = [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]    # their CSR entries
+    wsrc, esrc = [], list(s_src)
     nw, ne = 0, int(s_ptr[-1])
     for g, verts in enumerate(g_vert):
         m = int(g_size[g])
@@ -764,7 +764,7 @@ def lane_layout(st_ptr: np.ndarray, template: np.ndarray, st_idx: np.ndarray,
             ne += lanes * m
         g_wptr[g, :2] = wblocks[wkey], eblocks[ekey]
     s_wptr = nw + s_ptr[:-1]
-    wsrc += [np.arange(st_ptr[i], st_ptr[i + 1]) for i in s_vert]
+    wsrc += s_src
     wsrc = np.concatenate(wsrc).astype(np.int64) if wsrc else np.zeros(0, np.int64)
     esrc = np.concatenate(esrc).astype(np.int64) if esrc else np.zeros(0, np.int64)
     ln_idx = np.where(np.arange(len(esrc)) < s_ptr[-1], st_idx[esrc], offset[esrc])

@@ -270,11 +270,10 @@ class ClothSimulator:
             if end <= K:        # else no room to spare (a tiny mesh): entry positions
                 w = g_wptr.copy()
                 w[:, 2] = base
-                # position -> slot, for the transposed stencil (ops[14] holds positions)
+                # position -> slot, for the transposed stencil (ops[14] holds positions):
+                # a group's entry at g_ptr[g] + r goes to base[g] + r
                 slot = np.arange(K, dtype=np.int64)
-                first = np.repeat(g_ptr[:-1], size)
-                slot[first[0]:] = (np.repeat(base, size) + np.arange(first.size)
-                                   - (first - first[0]))
+                slot[g_ptr[0]:] += np.repeat(base - g_ptr[:-1], size)
                 tr = slot[self._ops[14]]
         f_tile = tile_of_chunk[np.repeat(np.arange(nch), np.diff(fc_ptr))]
         base, end = self._place(np.ones(m, dtype=np.int64), f_tile,
