@@ -828,46 +828,17 @@ def face_coupling(x, faces, dinv, face_area, K, cstress, fgrad):
 
 
 @kernel(inline='always')
-def _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2):
-    """(g0, g1, g2) plus the stencil gradients of every vertex whose jet uses x_j (the
-    transposed stencil ``tr_slot[tr_ptr[j]:tr_ptr[j1]]``, j1 = j + 1, both unsigned)."""
-    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
-        k = nb.uint64(tr_slot[q])
-        g0 += contrib[0, k]
-        g1 += contrib[1, k]
-        g2 += contrib[2, k]
-    return g0, g1, g2
-
-
-@kernel(inline='always')
-def _gather(j, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib):
+def _gather(j, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib):
     """-dE/dx_j: corner gradients of the incident faces plus the stencil gradients of every
     vertex whose jet uses x_j (the transposed stencil).
 
-    The indices are read as unsigned: a signed index makes numba add its negative-index
+    The corner gradients are rows ``frow`` (3 m, 3) of fgrad: ``vf_row`` holds 3 face +
+    corner (or 3 slot + corner, where the tiled step puts them) per vertex-face pair, and
+    ``tr_slot`` the stencil gradients' positions in ``contrib``. Both are uint32: the gather
+    streams 4 bytes per index instead of 8, and one index per face instead of two. All
+    indices are read as unsigned: a signed index makes numba add its negative-index
     wrap-around (four integer instructions per load), which cost the gather ~25% at
     N = 40 (one thread, 42 -> 31 ns per vertex)."""
-    j1 = nb.uint64(j + 1)
-    j = nb.uint64(j)
-    g0 = 0.0
-    g1 = 0.0
-    g2 = 0.0
-    for q in range(nb.uint64(vf_ptr[j]), nb.uint64(vf_ptr[j1])):
-        t = nb.uint64(vf_face[q])
-        c = nb.uint64(vf_corner[q])
-        g0 += fgrad[t, c, 0]
-        g1 += fgrad[t, c, 1]
-        g2 += fgrad[t, c, 2]
-    g0, g1, g2 = _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2)
-    return -g0, -g1, -g2
-
-
-@kernel(inline='always')
-def _gather_rows(j, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib):
-    """:func:`_gather` for the tiled step, over 32-bit indices: the corner gradients as rows
-    ``frow`` (3 m, 3) of fgrad, ``vf_row`` = 3 slot + corner per vertex-face pair, and the
-    stencil gradients' slots ``tr_slot``, both uint32 (the gather streams 4 bytes per
-    index instead of 8, and one index per face instead of two)."""
     j1 = nb.uint64(j + 1)
     j = nb.uint64(j)
     g0 = 0.0
@@ -878,17 +849,22 @@ def _gather_rows(j, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib):
         g0 += frow[r, 0]
         g1 += frow[r, 1]
         g2 += frow[r, 2]
-    g0, g1, g2 = _gather_stencil(j, j1, tr_ptr, tr_slot, contrib, g0, g1, g2)
+    for q in range(nb.uint64(tr_ptr[j]), nb.uint64(tr_ptr[j1])):
+        k = nb.uint64(tr_slot[q])
+        g0 += contrib[0, k]
+        g1 += contrib[1, k]
+        g2 += contrib[2, k]
     return -g0, -g1, -g2
 
 
 @kernel(parallel=True)
-def gather_forces(vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot, contrib, force):
-    """force[j] = -dE/dx_j (n,3) [N]."""
+def gather_forces(vf_ptr, vf_row, fgrad, tr_ptr, tr_slot, contrib, force):
+    """force[j] = -dE/dx_j (n,3) [N] (:func:`_gather`; fgrad (m, 3, 3) read as rows)."""
     n = force.shape[0]
+    frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
     for j in nb.prange(n):
-        force[j, 0], force[j, 1], force[j, 2] = _gather(j, vf_ptr, vf_face, vf_corner, fgrad,
-                                                        tr_ptr, tr_slot, contrib)
+        force[j, 0], force[j, 1], force[j, 2] = _gather(j, vf_ptr, vf_row, frow, tr_ptr,
+                                                        tr_slot, contrib)
 
 
 @kernel(parallel=True)

@@ -20,8 +20,8 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .forces import (_gather, _gather_rows, _vertex_chunk, covariant_forces, face_coupling,
-                     face_membrane, gather_forces)
+from .forces import (_gather, _vertex_chunk, covariant_forces, face_coupling, face_membrane,
+                     gather_forces)
 
 METHOD_VARIATIONAL = 0
 METHOD_COVARIANT = 1
@@ -89,7 +89,7 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contr
     b = 0
     for q in range(q0, q1):
         i = gl_vert[q]
-        f0, f1, f2 = _gather_rows(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
+        f0, f1, f2 = _gather(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
         force[i, 0] = f0
         force[i, 1] = f1
         force[i, 2] = f2
@@ -120,7 +120,7 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
     ClothSimulator._rings). Writes (external work, dissipation, bad vertices) of part p
     to pacc[p]."""
     (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
-     tr_ptr, _, vf_ptr, vf_face, vf_corner, vf_K, g_vert, g_ptr, _, s_vert, s_ptr,
+     tr_ptr, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, _, s_vert, s_ptr,
      s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile, g_wptr,
      tr_slot, fc_slot, vf_row) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
@@ -173,7 +173,7 @@ def variational_stages(x, ops, mat, work):
 def variational_forces(x, ops, mat, work, force):
     """Internal force -dE/dx (n,3) [N] of the discrete Cosserat energy at positions x."""
     variational_stages(x, ops, mat, work)
-    gather_forces(ops[15], ops[16], ops[17], work[5], ops[13], ops[14], work[6], force)
+    gather_forces(ops[15], ops[17], work[5], ops[13], ops[14], work[6], force)
 
 
 @kernel(parallel=True)
@@ -183,15 +183,15 @@ def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinn
     that went bad (non-finite or faster than sqrt(vmax2)). With ``gather`` the last stage
     of the variational force (the gather of corner and stencil gradients) runs in the same
     pass and fills ``force``; otherwise ``force`` is read as given."""
-    tr_ptr, tr_slot, vf_ptr, vf_face, vf_corner = ops[13], ops[14], ops[15], ops[16], ops[17]
+    tr_ptr, tr_slot, vf_ptr, vf_row = ops[13], ops[14], ops[15], ops[17]
     fgrad, contrib = work_arrays[5], work_arrays[6]
+    frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
     work = 0.0
     diss = 0.0
     bad = 0
     for i in nb.prange(x.shape[0]):
         if gather:
-            f0, f1, f2 = _gather(i, vf_ptr, vf_face, vf_corner, fgrad, tr_ptr, tr_slot,
-                                 contrib)
+            f0, f1, f2 = _gather(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
             force[i, 0] = f0
             force[i, 1] = f1
             force[i, 2] = f2

@@ -142,16 +142,23 @@ class ClothSimulator:
         # vertex pass reads ln_* (uv and sigma in its kernels' st_uv, st_sigma slots,
         # ln_idx in the st_idx slot) and the transposed stencil points into its entry
         # order
+        # ... and the gathers read 32-bit indices: the stencil gradients' positions and one
+        # row 3 face + corner of fgrad (m, 3, 3) per vertex-face pair
+        if max(len(self._jet.st_idx), 3 * m) > np.iinfo(np.uint32).max:
+            raise ValueError(f'mesh too large: {m} faces and {len(self._jet.st_idx)} '
+                             'stencil entries, the step indexes them with 32 bits')
+        vf_row = (3 * mesh.vf_face + mesh.vf_corner).astype(np.uint32)
         self._ops = (mesh.faces, self._dinv, mesh.face_areas, self._K, mesh.dual_areas,
                      self._ainv, self._rest_b, self._jet.st_ptr, self._jet.st_idx,
                      self._jet.st_w, ln_uv, ln_sigma, self._stab,
-                     self._jet.tr_ptr, pos[self._jet.tr_slot],
-                     mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, self._vf_K,
+                     self._jet.tr_ptr, pos[self._jet.tr_slot].astype(np.uint32),
+                     mesh.vf_ptr, mesh.vf_face, vf_row, self._vf_K,
                      g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
         # the energy's fields (forces.vertex_fields) read the stencils in plain CSR order:
-        # its chart coordinates and rest residuals in that order too
-        self._csr = (st_uv, st_sigma)
+        # its chart coordinates and rest residuals in that order too, and its gather the
+        # transposed stencil's CSR positions
+        self._csr = (st_uv, st_sigma, self._jet.tr_slot.astype(np.uint32))
         nch = -(-n // VERTEX_CHUNK)
         # large meshes without coupling step tile by tile (integrator.run_tiled)
         self._tiled = n >= FUSE_MIN_VERTICES
@@ -625,12 +632,12 @@ class ClothSimulator:
         eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work
         o = self._ops
         _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], o[8], o[9],
-                              *self._csr, o[12], o[15], o[16], o[18], o[4], o[5], o[6],
+                              *self._csr[:2], o[12], o[15], o[16], o[18], o[4], o[5], o[6],
                               self._mat[1], self._mat[2], scratch, contrib, fgrad, eps,
                               cstress, kap, epsbar, estab)
         if self._mat[2] != 0.0:
             _forces.face_coupling(self._x, o[0], o[1], o[2], o[3], cstress, fgrad)
-        _forces.gather_forces(o[15], o[16], o[17], fgrad, o[13], self._jet.tr_slot, contrib, f)
+        _forces.gather_forces(o[15], o[17], fgrad, o[13], self._csr[2], contrib, f)
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
