@@ -88,6 +88,12 @@ def test_colormap_range_and_degenerate_span():
     assert np.array_equal(c[0], c[1]) and np.array_equal(c[3], c[4])
     assert not np.array_equal(c[1], c[3])
     assert np.all(np.isfinite(colormap(np.ones(3), 1.0, 1.0)))
+    # piecewise linear through the 8 control points, evenly spaced over [vmin, vmax]
+    stops = colormap(np.arange(8) / 7.0 * 2.0 - 1.0, -1.0, 1.0)[:, :3]
+    mid = colormap((np.arange(7) + 0.5) / 7.0, 0.0, 1.0)[:, :3]
+    assert np.allclose(mid, 0.5 * (stops[:-1] + stops[1:]), atol=1e-6)
+    assert np.allclose(stops[[0, -1]], [[0.267004, 0.004874, 0.329415],
+                                        [0.993248, 0.906157, 0.143936]], atol=1e-6)
 
 
 def test_building_a_large_mesh_message_is_cheap():

@@ -17,7 +17,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from cosserat_ros.node import ClothNode, ConfigError, pin_set
+from cosserat_ros.node import ClothNode, ConfigError, percentile, pin_set
 
 N = 8
 OVERRIDES = {'mesh.nx': N, 'mesh.ny': N, 'publish_rate': 50.0, 'status_period': 0.0,
@@ -286,3 +286,11 @@ def test_shipped_configs_start_and_step(config):
     finally:
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.parametrize('n', [1, 2, 7, 1681])
+def test_percentile_from_a_partial_sort_is_numpys(n):
+    v = np.random.default_rng(n).standard_normal(n)
+    for q in (0.0, 50.0, 98.0, 100.0):
+        assert percentile(v, q) == pytest.approx(np.percentile(v, q), rel=1e-14, abs=1e-15)
+
