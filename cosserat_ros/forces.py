@@ -644,19 +644,22 @@ _vertex_call = kernel()(_vertex.py_func)
 
 
 @kernel(parallel=True)
-def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, st_sigma,
-                  stab, vf_ptr, vf_face, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                  csr_contrib, fgrad, eps, cstress, kap, epsbar, estab):
+def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_wptr, st_idx, st_w, st_uv,
+                  st_sigma, stab, vf_ptr, vf_face, vf_K, dual_area, ainv, rest_b, xi, phi,
+                  scratch, csr_contrib, fgrad, eps, cstress, kap, epsbar, estab):
     """The per-element fields of the energy at positions x: face strains eps (m,3) (Eq. 17),
     curvature change kap, strain average epsbar and coupling stress (n,3), and the jet
     residual energy estab (n,), from the same formulas as the step (:func:`_face_membrane`,
-    :func:`_vertex`) on the stencils in plain CSR order (``st_uv``, ``st_sigma`` in that
-    order too). The step does not store them (the stores cost it 3-13%); the energy report
-    calls this instead of the step's force. It also writes the membrane corner gradients
-    ``fgrad`` and the stencil gradients ``csr_contrib`` (3,K) in CSR order, so that the
-    report gathers its force from them (with the transposed stencil's CSR slots) rather
-    than run the force a second time; ``scratch`` (R, 5, S) gives each of its R work
-    items a row."""
+    :func:`_vertex`) on the stencils in plain CSR order (``st_sigma`` in that order too;
+    vertex i's weights ``st_w`` and chart coordinates ``st_uv`` from ``st_wptr[i]`` on,
+    a block per stencil template, which vertices with the same stencil share: a
+    structured sheet then streams almost no weights; a weight per entry made this pass
+    1.5x slower at N = 80). The step does not store these fields (the stores cost it
+    3-13%); the energy report calls this instead of the step's force. It also writes the
+    membrane corner gradients ``fgrad`` and the stencil gradients ``csr_contrib`` (3,K) in
+    CSR order, so that the report gathers its force from them (with the transposed
+    stencil's CSR slots) rather than run the force a second time; ``scratch`` (R, 5, S)
+    gives each of its R work items a row."""
     for t in nb.prange(faces.shape[0]):
         _face_membrane(t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
     n = x.shape[0]
@@ -664,7 +667,7 @@ def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_idx, st_w, st_uv, 
     chunk = (n + nch - 1) // nch
     for c in nb.prange(nch):
         for i in range(np.int64(c) * chunk, min(n, (np.int64(c) + 1) * chunk)):
-            _vertex_call(i, st_ptr[i], st_ptr[i + 1], st_ptr[i], x, st_idx, st_w, st_uv,
+            _vertex_call(i, st_ptr[i], st_ptr[i + 1], st_wptr[i], x, st_idx, st_w, st_uv,
                          st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b,
                          xi, phi, scratch, np.int64(c), csr_contrib, cstress, kap, epsbar,
                          estab)

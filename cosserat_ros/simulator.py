@@ -156,9 +156,19 @@ class ClothSimulator:
                      g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w)
         self._cov = (self._rest_a, self._st_T)
         # the energy's fields (forces.vertex_fields) read the stencils in plain CSR order:
-        # its chart coordinates and rest residuals in that order too, and its gather the
-        # transposed stencil's CSR positions
-        self._csr = (st_uv, st_sigma, self._jet.tr_slot.astype(np.uint32))
+        # the rest residuals in that order too, the weights and chart coordinates in a
+        # block per stencil template (equal to the bit for the vertices that share it,
+        # geometry.build_jet_operator), and its gather the transposed stencil's CSR
+        # positions
+        st_ptr = self._jet.st_ptr
+        reps, tpl = np.unique(self._jet.template, return_inverse=True)
+        size = np.diff(st_ptr)[reps]
+        blk = np.zeros(len(reps) + 1, dtype=np.int64)
+        np.cumsum(size, out=blk[1:])
+        tsrc = np.repeat(st_ptr[reps] - blk[:-1], size) + np.arange(blk[-1])
+        self._csr = (blk[tpl], np.ascontiguousarray(self._jet.st_w[:, tsrc]),
+                     np.ascontiguousarray(st_uv[:, tsrc]), st_sigma,
+                     self._jet.tr_slot.astype(np.uint32))
         nch = -(-n // VERTEX_CHUNK)
         # large meshes without coupling step tile by tile (integrator.run_tiled)
         self._tiled = n >= FUSE_MIN_VERTICES
@@ -631,13 +641,14 @@ class ClothSimulator:
         # force is the gather of those through the CSR transposed stencil
         eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work
         o = self._ops
-        _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], o[8], o[9],
-                              *self._csr[:2], o[12], o[15], o[16], o[18], o[4], o[5], o[6],
+        wptr, w, uv, sigma, tr_slot = self._csr
+        _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], wptr, o[8], w, uv,
+                              sigma, o[12], o[15], o[16], o[18], o[4], o[5], o[6],
                               self._mat[1], self._mat[2], scratch, contrib, fgrad, eps,
                               cstress, kap, epsbar, estab)
         if self._mat[2] != 0.0:
             _forces.face_coupling(self._x, o[0], o[1], o[2], o[3], cstress, fgrad)
-        _forces.gather_forces(o[15], o[17], fgrad, o[13], self._csr[2], contrib, f)
+        _forces.gather_forces(o[15], o[17], fgrad, o[13], tr_slot, contrib, f)
         out = np.empty((self.mesh.n_vertices, 3))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
