@@ -43,6 +43,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
+from . import warmup
 from .forces import DIVERGENCE_METHODS
 from .mesh import grid_mesh, GRID_PATTERNS, load_mesh, MeshError
 from .messages import colormap, mesh_marker_array
@@ -638,6 +639,9 @@ class ClothNode(Node):
 
 def main(args=None) -> int:
     """Entry point of the ``cloth_node`` executable (``ros2 run cosserat_ros cloth_node``)."""
+    # with a cold compile cache, compile the step's update and the energy report on the
+    # other core while this process compiles the force (cosserat_ros.warmup)
+    warmup.start()
     try:
         rclpy.init(args=args)
     except Exception as exc:       # e.g. an unreadable --params-file

@@ -1,7 +1,10 @@
 """The numba set-up: one option set, stale caches of cross-file kernels are dropped, and the
 explicit SIMD vectors of the vertex pass compute what the one-vertex-at-a-time code does."""
+import os
 import pathlib
 import re
+import subprocess
+import sys
 
 import numba as nb
 import numpy as np
@@ -22,6 +25,45 @@ def test_every_kernel_module_is_hashed():
                     if re.search(r'@(nb\.njit|kernel)\(|@intrinsic\b', p.read_text())}
     # compiled.py holds the options every kernel is compiled with
     assert with_kernels | {'compiled.py'} == set(compiled.KERNEL_MODULES)
+
+
+_LOADS = """
+import numba as nb
+from cosserat_ros import warmup
+from cosserat_ros.forces import vertex_fields
+from cosserat_ros.integrator import integrate
+from cosserat_ros.mesh import grid_mesh
+from cosserat_ros.simulator import ClothSimulator, Material
+assert warmup.kernels_cached()
+s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=0.0, density=0.1),
+                   dt=1e-5, check_dt=False)
+s.energy_and_densities()
+
+@nb.njit
+def step_update(ops, work, x, v, force, fa, mass, damp, pinned, g, dt, vmax2, acc):
+    # as run_variational calls it: a literal True
+    return integrate(ops, work, True, x, v, force, fa, mass, damp, pinned, g, dt, vmax2, acc)
+
+step_update(s._ops, s._work, s._x, s._v, s._force, s._f_applied, s._mass, s._damp, s._pinned,
+            s._gravity, s._dt, 1e6, s._acc)
+for k in (vertex_fields, integrate):
+    assert sum(k.stats.cache_hits.values()) == 1 and not k.stats.cache_misses, k
+print('loaded')
+"""
+
+
+def test_warmup_process_compiles_what_the_node_then_loads(tmp_path):
+    # cosserat_ros.warmup, the node's second process on a cold start: into an empty cache
+    # it compiles the energy kernels and the step's update with the signatures the node
+    # asks for, so that a later process (another mesh, another material) loads them
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
+    run = dict(env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    cold = subprocess.run([sys.executable, '-c', 'from cosserat_ros import warmup\n'
+                           'print(warmup.kernels_cached())'], **run)
+    assert cold.stdout.strip() == 'False', cold.stderr
+    assert subprocess.run([sys.executable, '-m', 'cosserat_ros.warmup'], **run).returncode == 0
+    warm = subprocess.run([sys.executable, '-c', _LOADS], **run)
+    assert warm.stdout.strip() == 'loaded', warm.stderr
 
 
 def test_stale_cache_is_removed_when_a_kernel_source_changes(tmp_path):
