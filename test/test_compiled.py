@@ -5,6 +5,7 @@ import pathlib
 import re
 import subprocess
 import sys
+import time
 
 import numba as nb
 import numpy as np
@@ -26,6 +27,17 @@ def test_every_kernel_module_is_hashed():
     # compiled.py holds the options every kernel is compiled with
     assert with_kernels | {'compiled.py'} == set(compiled.KERNEL_MODULES)
 
+
+_STARTS = """
+import os
+from cosserat_ros import warmup
+assert not warmup.kernels_cached()
+first, second = warmup.start(), warmup.start()
+assert first is not None and second is None
+assert first.wait(600) == 0
+assert warmup.kernels_cached() and not os.path.exists(warmup._index_path() + '.warmup')
+print('ok')
+"""
 
 _LOADS = """
 import numba as nb
@@ -56,14 +68,23 @@ def test_warmup_process_compiles_what_the_node_then_loads(tmp_path):
     # cosserat_ros.warmup, the node's second process on a cold start: into an empty cache
     # it compiles the energy kernels and the step's update with the signatures the node
     # asks for, so that a later process (another mesh, another material) loads them
+    # (a second start while the first warm-up runs does not start another)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
     run = dict(env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    cold = subprocess.run([sys.executable, '-c', 'from cosserat_ros import warmup\n'
-                           'print(warmup.kernels_cached())'], **run)
-    assert cold.stdout.strip() == 'False', cold.stderr
-    assert subprocess.run([sys.executable, '-m', 'cosserat_ros.warmup'], **run).returncode == 0
+    cold = subprocess.run([sys.executable, '-c', _STARTS], **run)
+    assert cold.stdout.strip() == 'ok', cold.stderr
     warm = subprocess.run([sys.executable, '-c', _LOADS], **run)
     assert warm.stdout.strip() == 'loaded', warm.stderr
+
+
+def test_warmup_lock_is_taken_once_and_a_stale_one_replaced(tmp_path):
+    from cosserat_ros import warmup
+    lock = str(tmp_path / 'x.nbi.warmup')
+    assert warmup._take_lock(lock) and not warmup._take_lock(lock)
+    old = time.time() - warmup.LOCK_SECONDS - 1          # its warm-up died long ago
+    os.utime(lock, (old, old))
+    assert warmup._take_lock(lock) and not warmup._take_lock(lock)
+    assert not warmup._take_lock(str(tmp_path / 'missing' / 'x.warmup'))
 
 
 def test_stale_cache_is_removed_when_a_kernel_source_changes(tmp_path):
