@@ -47,7 +47,7 @@ from . import warmup
 from .forces import DIVERGENCE_METHODS
 from .mesh import grid_mesh, GRID_PATTERNS, load_mesh, MeshError
 from .messages import colormap, mesh_marker_array
-from .simulator import ClothSimulator, Material, SimulationDiverged
+from .simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
 from .surface_query import closest_points
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
@@ -174,6 +174,9 @@ class ClothNode(Node):
             raise ConfigError(f'divergence must be one of {DIVERGENCE_METHODS}, '
                               f'got {p["divergence"]!r}')
         t0 = time.perf_counter()
+        # with a cold compile cache, a second process compiles on the other core what the
+        # start-up below needs after its step's big vertex pass (cosserat_ros.warmup)
+        warmup.start(steps_tiled(self.mesh.n_vertices, material.phi, p['divergence']))
         self.sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
                                   divergence=p['divergence'], check_dt=False)
         # compile (or load from cache) every kernel of the step and of the energy report
@@ -639,9 +642,6 @@ class ClothNode(Node):
 
 def main(args=None) -> int:
     """Entry point of the ``cloth_node`` executable (``ros2 run cosserat_ros cloth_node``)."""
-    # with a cold compile cache, compile the step's update and the energy report on the
-    # other core while this process compiles the force (cosserat_ros.warmup)
-    warmup.start()
     try:
         rclpy.init(args=args)
     except Exception as exc:       # e.g. an unreadable --params-file

@@ -39,7 +39,7 @@ from .material import Material
 from .mesh import ClothMesh
 from .simd import LANES
 
-__all__ = ['ClothSimulator', 'Material', 'SimulationDiverged']
+__all__ = ['ClothSimulator', 'Material', 'SimulationDiverged', 'steps_tiled']
 
 
 class SimulationDiverged(RuntimeError):
@@ -54,6 +54,14 @@ class SimulationDiverged(RuntimeError):
         self.time = time
         self.hint = hint
         super().__init__(f'simulation diverged at step {step} (t = {time:.6g} s): {hint}')
+
+
+def steps_tiled(n_vertices: int, phi: float, divergence: str = 'variational') -> bool:
+    """Whether :meth:`ClothSimulator.step` runs the tiled step (``integrator.run_tiled``)
+    on a mesh of ``n_vertices`` with coupling ``phi``: the variational force without
+    coupling, from ``FUSE_MIN_VERTICES`` vertices on (the simulator's own ``_tiled`` and
+    phi; ``test_tiled_step.py`` checks that the two agree)."""
+    return divergence == 'variational' and phi == 0.0 and n_vertices >= FUSE_MIN_VERTICES
 
 
 def _sym3(t: np.ndarray) -> np.ndarray:

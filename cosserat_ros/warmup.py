@@ -1,16 +1,23 @@
 """Cold start on two cores: compile the kernels that are off the start-up's critical path
 in a second process, while the first compiles the rest.
 
-With an empty compile cache, numba compiles every kernel once, single-threaded, and the
-node's start-up runs them in this order (N = 40, one run on the 2-core test machine):
-the mesh's set-up kernels (~7 s), the force the critical dt needs
-(``variational_forces``, ~35 s), the step (``run_variational``: ~10 s more, mostly its
-update pass ``integrate``) and the energy report (``vertex_fields``, ~8 s). The last two
-do not depend on the force's big vertex pass, so :func:`start` runs :func:`main` in a
-second process that compiles them (and the faces' kernels the force also calls) into
-the shared cache, on the other core. numba looks a kernel up in its cache whenever it is
-about to compile it, for itself or as the callee of another kernel, so the node then
-loads them instead of compiling them: first mesh after 37 s instead of 60 s in one A/B.
+With an empty compile cache numba compiles every kernel once, single-threaded. The node's
+start-up (``ClothNode.__init__``) compiles, in this order: the mesh's set-up kernels
+(~7 s on the 2-core test machine), one step, the energy report (``vertex_fields``, ~8 s)
+and the force behind the critical dt (``variational_forces``). Most of the step's
+compile is its big vertex pass. What comes after it depends on the step's kind:
+
+* the two-pass step (``run_variational``; small meshes, or a coupling) shares its vertex
+  pass with the critical dt's force; its update pass ``integrate`` (~5 s) and the energy
+  report do not depend on it. :func:`start` has a second process compile those two.
+* the tiled step (``run_tiled``, :func:`simulator.steps_tiled`) has a vertex pass of its
+  own, so the critical dt's force compiles a second big vertex pass (~30 s) after it;
+  the second process compiles that force, then the energy report.
+
+numba looks a kernel up in its cache whenever it is about to compile it, for itself or as
+the callee of another kernel, so the node loads what the second process finished in
+time. Measured on a 40 x 40 sheet (in-process, set-up, critical dt, step and energy):
+65.2 -> 39.0 s; the installed node to its first mesh 39-41 s cold.
 
 This module imports no ROS package.
 """
@@ -68,12 +75,13 @@ def _take_lock(path: str) -> bool:
     return False
 
 
-def start() -> Optional[subprocess.Popen]:
+def start(tiled: bool = False) -> Optional[subprocess.Popen]:
     """Start :func:`main` in a background process if the cache is cold and no other
-    warm-up is running; returns it (or None). It runs the package this process imported
-    (its parent directory as the working directory, which ``-m`` puts first on the path),
-    with the same environment (so the same ``NUMBA_CACHE_DIR``), and its output goes
-    nowhere: a caller that reads this process's pipes must not wait for it."""
+    warm-up is running; ``tiled``: the node's mesh steps tiled. Returns the process (or
+    None). It runs the package this process imported (its parent directory as the working
+    directory, which ``-m`` puts first on the path), with the same environment (so the same
+    ``NUMBA_CACHE_DIR``), and its output goes nowhere: a caller that reads this process's
+    pipes must not wait for it."""
     if kernels_cached():
         return None
     lock = _index_path() + '.warmup'
@@ -85,7 +93,8 @@ def start() -> Optional[subprocess.Popen]:
         return None
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     try:
-        return subprocess.Popen([sys.executable, '-m', 'cosserat_ros.warmup', lock],
+        return subprocess.Popen([sys.executable, '-m', 'cosserat_ros.warmup', lock]
+                                + (['tiled'] if tiled else []),
                                 cwd=root, stdin=subprocess.DEVNULL,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:
@@ -93,27 +102,39 @@ def start() -> Optional[subprocess.Popen]:
         return None
 
 
-def main(lock: Optional[str] = None) -> int:
-    """Compile, into the cache, the energy report's kernels and the step's update pass
-    with the argument types the node's start-up uses (a small sheet has the same types as
-    any other; a coupling phi != 0 adds the faces' coupling kernel); then remove the lock
-    file ``lock`` that :func:`start` took."""
+def main(lock: Optional[str] = None, tiled: bool = False) -> int:
+    """Compile into the cache, with the argument types of the node's start-up (a small
+    sheet has the same types as any other), what the node needs after its step's vertex
+    pass: for the two-pass step the update pass and the energy report (a coupling
+    phi != 0 adds the faces' coupling kernel), for the tiled step the critical dt's force
+    and the energy report. Then remove the lock file ``lock`` that :func:`start` took."""
     try:
-        _compile()
+        _compile_tiled() if tiled else _compile()
     finally:
         if lock is not None and os.path.exists(lock):
             os.remove(lock)
     return 0
 
 
-def _compile():
-    from .integrator import integrate
+def _sheet(side: int, phi: float):
     from .material import Material
     from .mesh import grid_mesh
     from .simulator import ClothSimulator
-    sim = ClothSimulator(grid_mesh(4, 4), Material(zeta=50.0, xi=2e-5, phi=1e-6,
-                                                   density=0.2, damping=0.1),
-                         dt=1e-5, check_dt=False)
+    return ClothSimulator(grid_mesh(side, side), Material(zeta=50.0, xi=2e-5, phi=phi,
+                                                          density=0.2, damping=0.1),
+                          dt=1e-5, check_dt=False)
+
+
+def _compile_tiled():
+    # the tiled and the two-pass step's operators have the same types: a small sheet does
+    sim = _sheet(4, 0.0)
+    sim.internal_forces()           # variational_forces: the critical dt's force
+    sim.energy_and_densities()
+
+
+def _compile():
+    from .integrator import integrate
+    sim = _sheet(4, 1e-6)
     sim.energy_and_densities()
 
     # the step calls integrate with a literal True (its own signature, which a call from
@@ -130,4 +151,4 @@ def _compile():
 
 
 if __name__ == '__main__':
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None, sys.argv[2:3] == ['tiled']))

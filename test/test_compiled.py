@@ -29,10 +29,10 @@ def test_every_kernel_module_is_hashed():
 
 
 _STARTS = """
-import os
+import os, sys
 from cosserat_ros import warmup
 assert not warmup.kernels_cached()
-first, second = warmup.start(), warmup.start()
+first, second = warmup.start(sys.argv[1] == 'tiled'), warmup.start()
 assert first is not None and second is None
 assert first.wait(600) == 0
 assert warmup.kernels_cached() and not os.path.exists(warmup._index_path() + '.warmup')
@@ -40,40 +40,49 @@ print('ok')
 """
 
 _LOADS = """
+import sys
 import numba as nb
 from cosserat_ros import warmup
 from cosserat_ros.forces import vertex_fields
-from cosserat_ros.integrator import integrate
+from cosserat_ros.integrator import integrate, variational_forces
 from cosserat_ros.mesh import grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
 assert warmup.kernels_cached()
 s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=0.0, density=0.1),
                    dt=1e-5, check_dt=False)
 s.energy_and_densities()
+if sys.argv[1] == 'tiled':
+    s.internal_forces()
+    loaded = (vertex_fields, variational_forces)
+else:
+    @nb.njit
+    def step_update(ops, work, x, v, force, fa, mass, damp, pinned, g, dt, vmax2, acc):
+        # as run_variational calls it: a literal True
+        return integrate(ops, work, True, x, v, force, fa, mass, damp, pinned, g, dt, vmax2,
+                         acc)
 
-@nb.njit
-def step_update(ops, work, x, v, force, fa, mass, damp, pinned, g, dt, vmax2, acc):
-    # as run_variational calls it: a literal True
-    return integrate(ops, work, True, x, v, force, fa, mass, damp, pinned, g, dt, vmax2, acc)
-
-step_update(s._ops, s._work, s._x, s._v, s._force, s._f_applied, s._mass, s._damp, s._pinned,
-            s._gravity, s._dt, 1e6, s._acc)
-for k in (vertex_fields, integrate):
+    step_update(s._ops, s._work, s._x, s._v, s._force, s._f_applied, s._mass, s._damp,
+                s._pinned, s._gravity, s._dt, 1e6, s._acc)
+    loaded = (vertex_fields, integrate)
+for k in loaded:
     assert sum(k.stats.cache_hits.values()) == 1 and not k.stats.cache_misses, k
 print('loaded')
 """
 
 
-def test_warmup_process_compiles_what_the_node_then_loads(tmp_path):
+@pytest.mark.parametrize('plan', ['two-pass', 'tiled'])
+def test_warmup_process_compiles_what_the_node_then_loads(tmp_path, plan):
     # cosserat_ros.warmup, the node's second process on a cold start: into an empty cache
-    # it compiles the energy kernels and the step's update with the signatures the node
-    # asks for, so that a later process (another mesh, another material) loads them
-    # (a second start while the first warm-up runs does not start another)
+    # it compiles what the node needs after its step's vertex pass (two-pass step: the
+    # energy kernels and the update; tiled step: the energy kernels and the critical dt's
+    # force) with the signatures the node asks for, so that a later process (another
+    # mesh, another material) loads them. A second start while the first warm-up runs
+    # does not start another.
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
     run = dict(env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    cold = subprocess.run([sys.executable, '-c', _STARTS], **run)
+    cold = subprocess.run([sys.executable, '-c', _STARTS, plan], **run)
     assert cold.stdout.strip() == 'ok', cold.stderr
-    warm = subprocess.run([sys.executable, '-c', _LOADS], **run)
+    warm = subprocess.run([sys.executable, '-c', _LOADS, plan], **run)
     assert warm.stdout.strip() == 'loaded', warm.stderr
 
 

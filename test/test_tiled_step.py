@@ -10,7 +10,7 @@ from cosserat_ros import integrator
 from cosserat_ros.constants import FUSE_MIN_VERTICES
 from cosserat_ros.forces import chunk_of_vertex
 from cosserat_ros.mesh import ClothMesh, grid_mesh
-from cosserat_ros.simulator import ClothSimulator, Material
+from cosserat_ros.simulator import ClothSimulator, Material, steps_tiled
 
 
 def _mesh(name):
@@ -146,3 +146,4 @@ def test_large_meshes_step_tiled_and_coupled_ones_do_not(monkeypatch):
                              dt=1e-5, check_dt=False)
         sim.step(1)
         assert calls[-1] == expect
+        assert steps_tiled(sim.mesh.n_vertices, phi) == (expect == 'run_tiled')
