@@ -419,7 +419,8 @@ def _store_lanes(a, c, i0, i1, i2, i3, v):
 
 @kernel(inline='always')
 def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab, vf_ptr,
-                  vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress):
+                  vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch, contrib, cstress,
+                  store_cs):
     """:func:`_vertex` for the four vertices of lane group g at once, one per SIMD lane
     (:mod:`.simd`): the same formulas, each operation on the four vertices in one vector.
 
@@ -531,10 +532,14 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
     cs11, cs12, cs22 = contract(phi, i11, i12, i22, k11, k12, k22)
     # the step stores the coupling stress (the faces read it when phi != 0), not kap,
     # epsbar or the residual energy: only the energy reads those, and it takes them from
-    # vertex_fields (storing them here cost the step 3-13%, paired)
-    _store_lanes(cstress, 0, i0, i1, i2, i3, cs11)
-    _store_lanes(cstress, 1, i0, i1, i2, i3, cs12)
-    _store_lanes(cstress, 2, i0, i1, i2, i3, cs22)
+    # vertex_fields (storing them here cost the step 3-13%, paired). The tiled step
+    # (phi = 0: nothing reads it) passes a literal False and the stores compile away
+    # (0.93-0.98x at N = 80 / 160, 1.00x at 320); the same as a run-time flag on the
+    # two-pass step had made N = 20 / 40 8-14% slower
+    if store_cs:
+        _store_lanes(cstress, 0, i0, i1, i2, i3, cs11)
+        _store_lanes(cstress, 1, i0, i1, i2, i3, cs12)
+        _store_lanes(cstress, 2, i0, i1, i2, i3, cs22)
     A = vset(dual_area[i0], dual_area[i1], dual_area[i2], dual_area[i3])
     g11 = -A * m11
     g12 = -2.0 * A * m12
@@ -594,7 +599,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
 def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
                   st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
                   phi, scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area,
-                  zeta, fc_ptr, fc_face, fc_slot, with_faces, fgrad):
+                  zeta, fc_ptr, fc_face, fc_slot, with_faces, fgrad, store_cs):
     """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_pass, and tile by
     tile integrator.vertex_parts): the vertex term for its lane groups (four vertices at
     a time, :func:`_vertex_lanes`) and its single vertices (stencil sizes that do not fill
@@ -629,7 +634,7 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
         _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                      row, contrib, cstress)
+                      row, contrib, cstress, store_cs)
     schunk = (nsv + nch - 1) // nch
     for u in range(ch * schunk, min(nsv, (ch + 1) * schunk)):
         _vertex(s_vert[u], s_ptr[u], s_ptr[u + 1], s_wptr[u], x, st_idx, st_w, st_uv,

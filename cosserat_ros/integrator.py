@@ -73,7 +73,7 @@ def vertex_pass(x, ops, mat, work, with_faces):
                       g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv, ln_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
                       contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                      fc_ptr, fc_face, fc_face, with_faces, fgrad)
+                      fc_ptr, fc_face, fc_face, with_faces, fgrad, True)
 
 
 @kernel()
@@ -139,7 +139,8 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
             _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
                           ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area,
                           ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
-                          faces, dinv, face_area, zeta, fc_ptr, fc_face, fc_slot, True, fgrad)
+                          faces, dinv, face_area, zeta, fc_ptr, fc_face, fc_slot, True, fgrad,
+                          False)
             if ch + 1 == tile_ch[t + 1]:
                 dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_row,
                                             frow, tr_ptr, tr_slot, contrib, x, v, force,
