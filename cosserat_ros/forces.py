@@ -615,7 +615,9 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
     step; their corner gradients go to the rows ``fc_slot`` of fgrad (fc_face itself, or
     ring slots in the tiled step). Only valid when the vertex terms do not read eps
-    (phi = 0); the strains are then not stored.
+    (phi = 0); the strains are then not stored. ``store_cs`` (a literal at each call)
+    stores the lane groups' coupling stress; the tiled step, where nothing reads it,
+    passes False.
 
     ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
     gets that body's ``noalias`` arrays; a plain call was 5-10% slower."""

@@ -114,7 +114,7 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
     stencil and corner gradients are still in this core's cache, and updating x[j] there
     is safe: the vertices and faces that read x[j] are exactly those that contribute to
     it, all done, and all in this part. The vertices on the seam between parts (the last
-    range of ops[30]) are left for :func:`integrate`. The lane groups' stencil gradients
+    range of ops[30]) are left for :func:`integrate_seam`. The lane groups' stencil gradients
     go where ops[33] says and are gathered from ops[34], the faces' corner gradients go
     to the rows ops[35] and are gathered from ops[36] (mostly rings that stay in cache,
     ClothSimulator._rings). Writes (external work, dissipation, bad vertices) of part p

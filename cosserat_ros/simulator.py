@@ -304,7 +304,7 @@ class ClothSimulator:
         base, end = self._place(np.ones(m, dtype=np.int64), f_tile,
                                 key[faces[fc_face]].max(axis=1), part_tile, 0)
         if end > m:
-            base = np.arange(m, dtype=np.int64)[fc_face]
+            base = fc_face.copy()      # each face its own row
         slot_of_face = np.empty(m, dtype=np.int64)
         slot_of_face[fc_face] = base
         # 32-bit: the gathers stream 4 bytes per index, and one index per face
