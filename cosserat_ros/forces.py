@@ -67,16 +67,18 @@ DIVERGENCE_METHODS = ('variational', 'covariant')
 
 
 @kernel(inline='always')
-def _deformation_gradient(x, faces, dinv, t):
-    """F_t = [x1 - x0, x2 - x0] Dinv_t (3x2) of face t, returned row by row (F_00, F_01,
-    F_10, F_11, F_20, F_21). Recomputed where needed rather than stored (memory traffic)."""
+def _deformation_gradient(x, faces, dinv, t, td):
+    """F_t = [x1 - x0, x2 - x0] Dinv_t (3x2) of face t (corners faces[t], Dinv = dinv[td]:
+    td = t, or the face's rest shape in a table of the distinct ones), returned row by
+    row (F_00, F_01, F_10, F_11, F_20, F_21). Recomputed where needed rather than stored
+    (memory traffic)."""
     i0 = nb.uint64(faces[t, 0])     # unsigned: no negative-index wrap-around per load
     i1 = nb.uint64(faces[t, 1])
     i2 = nb.uint64(faces[t, 2])
-    d00 = dinv[t, 0, 0]
-    d01 = dinv[t, 0, 1]
-    d10 = dinv[t, 1, 0]
-    d11 = dinv[t, 1, 1]
+    d00 = dinv[td, 0, 0]
+    d01 = dinv[td, 0, 1]
+    d10 = dinv[td, 1, 0]
+    d11 = dinv[td, 1, 1]
     e10 = x[i1, 0] - x[i0, 0]
     e20 = x[i2, 0] - x[i0, 0]
     e11 = x[i1, 1] - x[i0, 1]
@@ -89,14 +91,14 @@ def _deformation_gradient(x, faces, dinv, t):
 
 
 @kernel(inline='always')
-def _corner_gradient_row(t, ts, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
+def _corner_gradient_row(td, ts, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
     """Coordinate k (row (fa, fb) of F) of the corner gradients ``[g_1 g_2] = F S Dinv^T``
-    of face t, into fgrad[ts] (ts = t, or the face's ring slot in the tiled step); corner
-    0 takes ``-g_1 - g_2``; written, or added (add)."""
+    of a face with Dinv = dinv[td], into fgrad[ts] (ts = the face, or its ring slot in the
+    tiled step); corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
     p0 = fa * s11 + fb * s12
     p1 = fa * s12 + fb * s22
-    g1 = p0 * dinv[t, 0, 0] + p1 * dinv[t, 0, 1]
-    g2 = p0 * dinv[t, 1, 0] + p1 * dinv[t, 1, 1]
+    g1 = p0 * dinv[td, 0, 0] + p1 * dinv[td, 0, 1]
+    g2 = p0 * dinv[td, 1, 0] + p1 * dinv[td, 1, 1]
     if add:
         fgrad[ts, 1, k] += g1
         fgrad[ts, 2, k] += g2
@@ -111,20 +113,22 @@ def _corner_gradient_row(t, ts, k, fa, fb, s11, s12, s22, dinv, fgrad, add):
 def _corner_gradients(x, faces, dinv, t, s11, s12, s22, fgrad, add):
     """dE/dx at the three corners of face t for the stress-times-area S (face chart):
     ``[g_1 g_2] = F S Dinv^T``, corner 0 takes ``-g_1 - g_2``; written, or added (add)."""
-    f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
+    f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t, t)
     _corner_gradient_row(t, t, 0, f00, f01, s11, s12, s22, dinv, fgrad, add)
     _corner_gradient_row(t, t, 1, f10, f11, s11, s12, s22, dinv, fgrad, add)
     _corner_gradient_row(t, t, 2, f20, f21, s11, s12, s22, dinv, fgrad, add)
 
 
 @kernel(inline='always')
-def _face_membrane(t, ts, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
+def _face_membrane(t, td, ts, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps):
     """Face t: Green strain eps[t] = (11, 12, 22) of the deformation gradient F (Eq. 17),
     stored if ``store_eps`` (a constant at every call: the step's vertex pass does not
     need it), and the membrane's corner gradients fgrad[ts] (3,3) = d(area W_m)/dx_corner
     (ts = t, or the face's ring slot in the tiled step), with
-    ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart)."""
-    f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t)
+    ``N* = 2 zeta (tr(eps) I + 2 eps)`` (Eq. 22, A = I in the face chart). The corners are
+    faces[t], the rest shape dinv[td] and face_area[td] (td = t, or in the step's vertex
+    pass the face's row in the table of distinct rest shapes)."""
+    f00, f01, f10, f11, f20, f21 = _deformation_gradient(x, faces, dinv, t, td)
     e11 = 0.5 * (f00 * f00 + f10 * f10 + f20 * f20 - 1.0)
     e12 = 0.5 * (f00 * f01 + f10 * f11 + f20 * f21)
     e22 = 0.5 * (f01 * f01 + f11 * f11 + f21 * f21 - 1.0)
@@ -132,14 +136,14 @@ def _face_membrane(t, ts, x, faces, dinv, face_area, zeta, eps, fgrad, store_eps
         eps[t, 0] = e11
         eps[t, 1] = e12
         eps[t, 2] = e22
-    c = face_area[t] * 2.0 * zeta
+    c = face_area[td] * 2.0 * zeta
     tr = e11 + e22
     s11 = c * (tr + 2.0 * e11)
     s12 = c * (2.0 * e12)
     s22 = c * (tr + 2.0 * e22)
-    _corner_gradient_row(t, ts, 0, f00, f01, s11, s12, s22, dinv, fgrad, False)
-    _corner_gradient_row(t, ts, 1, f10, f11, s11, s12, s22, dinv, fgrad, False)
-    _corner_gradient_row(t, ts, 2, f20, f21, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(td, ts, 0, f00, f01, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(td, ts, 1, f10, f11, s11, s12, s22, dinv, fgrad, False)
+    _corner_gradient_row(td, ts, 2, f20, f21, s11, s12, s22, dinv, fgrad, False)
 
 
 @kernel(parallel=True)
@@ -148,7 +152,7 @@ def face_membrane(x, faces, dinv, face_area, zeta, eps, fgrad):
     (:func:`_face_membrane`). The step runs this in the vertex pass when phi = 0; with a
     coupling, the vertex pass reads eps, so the faces go first in a pass of their own."""
     for t in nb.prange(faces.shape[0]):
-        _face_membrane(t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
+        _face_membrane(t, t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
 
 
 @kernel(inline='always')
@@ -599,7 +603,7 @@ def _vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, st
 def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
                   st_uv, st_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi,
                   phi, scratch, contrib, cstress, kap, epsbar, estab, faces, dinv, face_area,
-                  zeta, fc_ptr, fc_face, fc_slot, with_faces, fgrad, store_cs):
+                  zeta, fc_ptr, fc_tpl, fc_slot, with_faces, fgrad, store_cs):
     """Work item (chunk) ``ch`` of the vertex pass (integrator.vertex_pass, and tile by
     tile integrator.vertex_parts): the vertex term for its lane groups (four vertices at
     a time, :func:`_vertex_lanes`) and its single vertices (stencil sizes that do not fill
@@ -612,10 +616,13 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     shared writes).
 
     With ``with_faces`` the membrane terms (:func:`_face_membrane`) of the chunk's faces
-    ``fc_face[fc_ptr[ch]:fc_ptr[ch + 1]]`` run here too: one parallel region fewer per
-    step; their corner gradients go to the rows ``fc_slot`` of fgrad (fc_face itself, or
-    ring slots in the tiled step). Only valid when the vertex terms do not read eps
-    (phi = 0); the strains are then not stored. ``store_cs`` (a literal at each call)
+    q = ``fc_ptr[ch]:fc_ptr[ch + 1]`` run here too: one parallel region fewer per step.
+    The caller passes them in chunk order, streamed front to back: their corners
+    ``faces[q]`` (uint32), their rest shapes as rows ``fc_tpl[q]`` of a table of the
+    distinct (Dinv, area) pairs (``dinv``, ``face_area``; a structured sheet has a few
+    dozen) and the rows ``fc_slot[q]`` of fgrad their corner gradients go to (the face
+    itself, or a ring slot in the tiled step). Only valid when the vertex terms do not read
+    eps (phi = 0); the strains are then not stored. ``store_cs`` (a literal at each call)
     stores the lane groups' coupling stress; the tiled step, where nothing reads it,
     passes False.
 
@@ -630,7 +637,7 @@ def _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
     nsv = s_vert.shape[0]
     for q in range(nb.uint64(fc_ptr[ch]), nb.uint64(fc_ptr[ch + 1] if with_faces else
                                                   fc_ptr[ch])):
-        _face_membrane(nb.uint64(fc_face[q]), nb.uint64(fc_slot[q]), x, faces, dinv,
+        _face_membrane(q, nb.uint64(fc_tpl[q]), nb.uint64(fc_slot[q]), x, faces, dinv,
                        face_area, zeta, eps, fgrad, False)
     gchunk = (ng + nch - 1) // nch
     for g in range(ch * gchunk, min(ng, (ch + 1) * gchunk)):
@@ -668,7 +675,7 @@ def vertex_fields(x, faces, dinv, face_area, zeta, st_ptr, st_wptr, st_idx, st_w
     stencil's CSR slots) rather than run the force a second time; ``scratch`` (R, 5, S)
     gives each of its R work items a row."""
     for t in nb.prange(faces.shape[0]):
-        _face_membrane(t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
+        _face_membrane(t, t, t, x, faces, dinv, face_area, zeta, eps, fgrad, True)
     n = x.shape[0]
     nch = scratch.shape[0]
     chunk = (n + nch - 1) // nch

@@ -59,10 +59,12 @@ def _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt, g0, g1, g2, 
 @kernel(parallel=True)
 def vertex_pass(x, ops, mat, work, with_faces):
     """The vertex pass (:func:`forces._vertex_chunk`; the faces too if ``with_faces``) over
-    all chunks in parallel, each with its own scratch row."""
-    (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
+    all chunks in parallel, each with its own scratch row. The faces' corner gradients go
+    to their own rows of fgrad (ops[29]; the tiled step's ring slots are its own)."""
+    (_, _, _, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
-     ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _, _, _) = ops
+     ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _, _, _, fc_vert, fc_tpl, f_dinv,
+     f_area) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     nch = tile_ch[tile_ch.shape[0] - 1]
@@ -72,8 +74,8 @@ def vertex_pass(x, ops, mat, work, with_faces):
         _vertex_chunk(np.int64(c), nch, np.int64(c), x, g_vert, g_ptr,
                       g_wptr, s_vert, s_ptr, s_wptr, ln_idx, ln_w, ln_uv, ln_sigma, stab,
                       vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, scratch,
-                      contrib, cstress, kap, epsbar, estab, faces, dinv, face_area, zeta,
-                      fc_ptr, fc_face, fc_face, with_faces, fgrad, True)
+                      contrib, cstress, kap, epsbar, estab, fc_vert, f_dinv, f_area, zeta,
+                      fc_ptr, fc_tpl, fc_face, with_faces, fgrad, True)
 
 
 @kernel()
@@ -117,12 +119,13 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
     range of ops[30]) are left for :func:`integrate_seam`. The lane groups' stencil gradients
     go where ops[33] says and are gathered from ops[34], the faces' corner gradients go
     to the rows ops[35] and are gathered from ops[36] (mostly rings that stay in cache,
-    ClothSimulator._rings). Writes (external work, dissipation, bad vertices) of part p
-    to pacc[p]."""
-    (faces, dinv, face_area, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
+    ClothSimulator._rings); the faces' corners and rest shapes are read in chunk order
+    (ops[37:41], ClothSimulator._face_stream). Writes (external work, dissipation, bad
+    vertices) of part p to pacc[p]."""
+    (_, _, _, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      tr_ptr, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, _, s_vert, s_ptr,
-     s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile, g_wptr,
-     tr_slot, fc_slot, vf_row) = ops
+     s_wptr, ln_idx, ln_w, tile_ch, fc_ptr, _, gl_ptr, gl_vert, part_tile, g_wptr,
+     tr_slot, fc_slot, vf_row, fc_vert, fc_tpl, f_dinv, f_area) = ops
     zeta, xi, phi = mat[0], mat[1], mat[2]
     eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = work
     nch = tile_ch[tile_ch.shape[0] - 1]
@@ -139,7 +142,7 @@ def vertex_parts(x, ops, mat, work, v, force, f_applied, mass, damp, pinned, gra
             _vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
                           ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area,
                           ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
-                          faces, dinv, face_area, zeta, fc_ptr, fc_face, fc_slot, True, fgrad,
+                          fc_vert, f_dinv, f_area, zeta, fc_ptr, fc_tpl, fc_slot, True, fgrad,
                           False)
             if ch + 1 == tile_ch[t + 1]:
                 dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_row,

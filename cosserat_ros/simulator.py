@@ -212,13 +212,13 @@ class ClothSimulator:
 
     # ------------------------------------------------------------------ set-up helpers
     def _schedule(self, nch: int, tile_vertices: int, parts: int, tiled: bool = True):
-        """The step's work plan (integrator.vertex_parts), ops[27:37]:
+        """The step's work plan (integrator.vertex_parts), ops[27:41]:
 
         * ``tile_ch`` (T+1,): chunk boundaries of the tiles (a tile is a run of
           ``tile_vertices / VERTEX_CHUNK`` chunks; no tile spans two parts);
-        * ``fc_ptr`` (nch+1,), ``fc_face`` (m,): the faces of each chunk (``tiled``: a face
-          goes with the chunk of its latest corner; otherwise equal runs of faces, which
-          measured 2-6% faster on small meshes);
+        * ``fc_ptr`` (nch+1,), ``fc_face`` (m,) uint32: the faces of each chunk
+          (``tiled``: a face goes with the chunk of its latest corner; otherwise equal
+          runs of faces, which measured 2-6% faster on small meshes);
         * ``gl_ptr`` (T+2,), ``gl_vert`` (n,): the vertices each tile completes (those whose
           contributors, the vertices whose stencils hold them and their incident faces,
           all lie in the tile's part and the last of them in the tile), then the seam (the
@@ -228,13 +228,15 @@ class ClothSimulator:
         * ``g_wptr``, ``tr_slot``, ``fc_slot``, ``vf_row``, ops[33:37]: where the tiled step
           writes each lane group's stencil gradients and each face's corner gradients, and
           where its gathers read them (:meth:`_rings`; without ``tiled`` ops[21], an empty
-          array, fc_face and an empty array).
+          array, fc_face and an empty array);
+        * ops[37:41]: the faces' corners and rest shapes in chunk order
+          (:meth:`_face_stream`).
         """
         n, faces = self.mesh.n_vertices, self.mesh.faces
         chunk = _forces.chunk_of_vertex(n, nch, self._ops[19], self._ops[22])
         face_chunk = (chunk[faces].max(axis=1) if tiled
                       else np.arange(len(faces)) // -(-len(faces) // nch))
-        fc_face = np.argsort(face_chunk, kind='stable').astype(np.int64)
+        fc_face = np.argsort(face_chunk, kind='stable').astype(np.uint32)
         fc_ptr = np.zeros(nch + 1, dtype=np.int64)
         np.cumsum(np.bincount(face_chunk, minlength=nch), out=fc_ptr[1:])
         # first and last contributing chunk of every vertex
@@ -259,8 +261,10 @@ class ClothSimulator:
         plan = (tile_ch, fc_ptr, fc_face, gl_ptr, gl_vert, part_tile)
         if not tiled:       # the same types, so that the kernels compile once
             none = np.zeros(0, dtype=np.uint32)
-            return plan + (self._ops[21], none, fc_face, none)
-        return plan + self._rings(nch, tile_ch, part_tile, key, fc_ptr, fc_face)
+            rings = (self._ops[21], none, fc_face, none)
+        else:
+            rings = self._rings(nch, tile_ch, part_tile, key, fc_ptr, fc_face)
+        return plan + rings + self._face_stream(fc_face)
 
     def _rings(self, nch, tile_ch, part_tile, key, fc_ptr, fc_face):
         """Where the tiled step writes its gradients, and where its gathers read them:
@@ -309,7 +313,30 @@ class ClothSimulator:
         slot_of_face[fc_face] = base
         # 32-bit: the gathers stream 4 bytes per index, and one index per face
         vf_row = 3 * slot_of_face[vf_face] + self.mesh.vf_corner
-        return w, tr.astype(np.uint32), base, vf_row.astype(np.uint32)
+        return w, tr.astype(np.uint32), base.astype(np.uint32), vf_row.astype(np.uint32)
+
+    def _face_stream(self, fc_face):
+        """What the step's vertex pass reads of the faces, in its order (``fc_face``):
+        ops[37:41] = their corners (m,3) uint32, and for each its row (m,) uint32 in a
+        table of the distinct rest shapes (Dinv (T,2,2), area (T,)), in order of first
+        use. Rows are equal when their bits are: the step computes the same numbers as
+        from ``dinv`` and ``face_areas`` themselves. A structured sheet has a few dozen
+        shapes (18 on the scene's grids), so the step streams 20 bytes per face (corners,
+        row and ring slot) where it streamed 80 (int64 corners, Dinv, area, face and slot
+        indices); an irregular mesh, whose table has a row per face, streams 60."""
+        m = len(fc_face)
+        shape = np.concatenate([self._dinv[fc_face].reshape(m, 4),
+                                self.mesh.face_areas[fc_face, None]], axis=1)
+        _, first, row = np.unique(shape.view(np.int64), axis=0, return_index=True,
+                                  return_inverse=True)
+        order = np.argsort(first)
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        table = shape[first[order]]
+        return (self.mesh.faces[fc_face].astype(np.uint32),
+                rank[row.ravel()].astype(np.uint32),
+                np.ascontiguousarray(table[:, :4].reshape(-1, 2, 2)),
+                np.ascontiguousarray(table[:, 4]))
 
     def _place(self, size, tile, last, part_tile, start):
         """Slots for items (lane groups, faces) of ``size`` entries, written in order, in

@@ -147,3 +147,40 @@ def test_large_meshes_step_tiled_and_coupled_ones_do_not(monkeypatch):
         sim.step(1)
         assert calls[-1] == expect
         assert steps_tiled(sim.mesh.n_vertices, phi) == (expect == 'run_tiled')
+
+
+@pytest.mark.parametrize('name', ['regular', 'alternating', 'irregular', 'icosphere'])
+def test_the_vertex_pass_reads_each_face_rest_shape_from_a_table_of_the_distinct_ones(name):
+    # ops[37:41]: the faces' corners in chunk order (uint32) and a row per face in a table
+    # of the distinct (Dinv, area) pairs, with the very bits of the face's own: the same
+    # forces, from a few dozen rows on a structured sheet
+    sim = _sim(_mesh(name), 32, 2, True)
+    fc_face = sim._ops[29].astype(np.int64)
+    fc_vert, fc_tpl, t_dinv, t_area = sim._ops[37:41]
+    assert fc_vert.dtype == fc_tpl.dtype == np.uint32
+    assert np.array_equal(fc_vert, sim.mesh.faces[fc_face])
+    assert np.array_equal(t_dinv[fc_tpl].view(np.int64), sim._dinv[fc_face].view(np.int64))
+    assert np.array_equal(t_area[fc_tpl].view(np.int64),
+                          sim.mesh.face_areas[fc_face].view(np.int64))
+    rows = np.concatenate([t_dinv.reshape(-1, 4), t_area[:, None]], axis=1).view(np.int64)
+    assert len(np.unique(rows, axis=0)) == len(rows)
+    # rows in order of first use: the stream reads the table front to back
+    assert np.all(np.diff(np.maximum.accumulate(fc_tpl.astype(np.int64))) <= 1)
+    if name in ('regular', 'alternating'):
+        assert len(rows) <= 64
+
+
+@pytest.mark.parametrize('name', ['irregular', 'icosphere'])
+def test_a_tiled_simulator_computes_the_same_internal_force_as_an_untiled_one(name):
+    # its force outside the step (critical dt, internal_forces) runs the two-pass vertex
+    # pass, whose corner gradients must go to each face's own row, not to the tiled step's
+    # ring slots
+    mesh = _mesh(name)
+    x = mesh.vertices + 0.01 * np.random.default_rng(5).standard_normal(mesh.vertices.shape)
+    forces = []
+    for tiled in (False, True):
+        sim = _sim(mesh, 32, 2, tiled)
+        sim.set_positions(x)
+        forces.append(sim.internal_forces())
+    assert np.abs(forces[0]).max() > 0
+    assert np.array_equal(forces[0], forces[1])
