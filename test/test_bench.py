@@ -14,6 +14,14 @@ def test_our_row_is_measured():
     assert 1000 < r['bytes_per_vertex'] < 20000
 
 
+def test_step_alone_rtf_is_dt_over_the_measured_step():
+    sim = bench.scene_simulator(8)
+    steps = sim.step_count
+    rtf, ms = bench.step_rtf(sim, batch_s=0.01, repeats=3, warmup_s=0.02)
+    assert ms > 0 and rtf == pytest.approx(sim.dt / (ms * 1e-3))
+    assert sim.step_count > steps + 3        # it really stepped: warm-up and 3 batches
+
+
 def test_peer_scene_has_the_issue_material():
     root = ET.fromstring(peer.scene_xml(10, 'Euler', 2e-4))
     fc = root.find('./worldbody/flexcomp')
