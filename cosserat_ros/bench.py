@@ -318,12 +318,14 @@ def part_node(watch_s: float):
     for name, mat, pinned in (('config/cloth.yaml material and pins', demo, demo_pins),
                               ('issue 6 scene, all edges pinned', SCENE, ['boundary'])):
         mesh = grid_mesh(40, 40)
+        # the node's cloth: its critical dt, and stepped alone beside each node run
         probe = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
         probe.pin(np.concatenate([pin_set(mesh, p) for p in pinned]))
+        probe.gravity = (0.0, 0.0, -peer.GRAVITY)
         crit = probe.critical_dt()
         for dt in sorted({2e-4, round(DT_FRACTION * crit, 7)}):
             if dt <= crit:
-                cases.append((name, mat, pinned, dt, crit))
+                cases.append((name, mat, pinned, dt, crit, probe))
     with tempfile.TemporaryDirectory() as tmp:
         params = os.path.join(tmp, 'p.yaml')
         _node_params(params, 40, demo, 2e-4, demo_pins)
@@ -338,12 +340,10 @@ def part_node(watch_s: float):
               'allows in the same minute; the node also publishes and waits for its timer.\n')
         _table(('material / pins', 'dt [s]', 'dt / critical', 'mesh msgs/s', 'RTF',
                 'step alone: RTF', 'step alone: ms'))
-        for name, mat, pinned, dt, crit in cases:
-            mesh = grid_mesh(40, 40)
-            alone = ClothSimulator(mesh, mat, dt=dt, check_dt=False)
-            alone.pin(np.concatenate([pin_set(mesh, p) for p in pinned]))
-            alone.gravity = (0.0, 0.0, -peer.GRAVITY)
-            alone_rtf, alone_ms = step_rtf(alone)
+        for name, mat, pinned, dt, crit, probe in cases:
+            probe.reset()
+            probe.dt = dt
+            alone_rtf, alone_ms = step_rtf(probe)
             _node_params(params, 40, mat, dt, pinned)
             _, rate, rtf = run_node(params, watch_s)
             print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.2f} | '
