@@ -54,6 +54,9 @@ COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
             'right_edge', 'boundary')
 MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
+#: [s] what each tick leaves free before the next is due, beyond its publishing: the
+#: executor's latency and the scatter of the publish cost (ClothNode._advance)
+TICK_MARGIN = 0.5e-3
 
 
 class ConfigError(ValueError):
@@ -513,24 +516,9 @@ class ClothNode(Node):
         if not self.paused and self.diverged is None:
             elapsed = self.period if self._last_tick is None else now - self._last_tick
             wanted = max(1, int(round(min(elapsed, 4 * self.period) / self.sim.dt)))
-            # stepping gets the period minus what publishing took (smoothed) and 5% slack
-            # for the executor, never less than a third of the period
-            budget = max(self.period / 3, 0.95 * self.period - self._publish_cost)
-            limit = max(1, int(budget / self._step_cost)) if self._step_cost > 0 else 1
-            n = min(wanted, limit)
-            self._lagging = n < wanted
-            t0 = time.perf_counter()
-            try:
-                self.sim.step(n)
-            except SimulationDiverged as exc:
-                self.diverged = str(exc)
-                self.paused = True
-                self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
-            else:
-                cost = (time.perf_counter() - t0) / n
-                self._step_cost = cost if self._step_cost == 0 else (
-                    0.8 * self._step_cost + 0.2 * cost)
-                self._window[1] += n * self.sim.dt
+            done = self._advance(wanted)
+            self._lagging = done < wanted
+            self._window[1] += done * self.sim.dt
         self._last_tick = now
         wall = now - self._window[0]
         if wall >= 1.0:
@@ -552,6 +540,47 @@ class ClothNode(Node):
                 f'{state} t={self.sim.time:.3f} s  RTF {self._rtf:.2f}  step '
                 f'{self._step_cost * 1e3:.3f} ms  E_total {e["total"]:.6g} J  '
                 f'(kin {e["kinetic"]:.3g}, elastic {e["elastic"]:.3g})')
+
+    def _advance(self, wanted: int) -> int:
+        """Take up to ``wanted`` steps, as many as fit before the next tick is due; return
+        how many were taken.
+
+        The steps end where the timer's next call is due, less the publishing that follows
+        them (its cost smoothed over ticks) and TICK_MARGIN; never less than a third of
+        the period. The timer keeps its own schedule (rcl's next call is a whole number of
+        periods from its start), so a tick that starts late, or one before it that ran
+        over, shortens this tick's stepping instead of shifting the next tick. The first
+        batch takes at most 3/4 of what the smoothed step cost says fits; the rest is
+        sized on that batch's own cost, measured in this tick, so a host that slows
+        down between ticks does not push the tick past its period."""
+        due = self.timer.time_until_next_call()
+        left = self.period if due is None else due * 1e-9
+        end = time.perf_counter() + max(self.period / 3,
+                                        left - self._publish_cost - TICK_MARGIN)
+        done, cost = 0, self._step_cost
+        while done < wanted:
+            if cost <= 0:
+                n = 1                                    # no estimate yet: one step
+            else:
+                fit = (end - time.perf_counter()) / cost
+                n = min(wanted - done, int(0.75 * fit if done == 0 else fit))
+                if n <= 0:
+                    if done:
+                        break
+                    n = 1                                # every tick takes a step
+            t0 = time.perf_counter()
+            try:
+                self.sim.step(n)
+            except SimulationDiverged as exc:
+                self.diverged = str(exc)
+                self.paused = True
+                self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
+                break
+            cost = (time.perf_counter() - t0) / n
+            self._step_cost = cost if self._step_cost == 0 else (
+                0.8 * self._step_cost + 0.2 * cost)
+            done += n
+        return done
 
     def stamp_ns(self) -> int:
         return int(round(self.sim.time * 1e9))

@@ -294,3 +294,50 @@ def test_percentile_from_a_partial_sort_is_numpys(n):
     for q in (0.0, 50.0, 98.0, 100.0):
         assert percentile(v, q) == pytest.approx(np.percentile(v, q), rel=1e-14, abs=1e-15)
 
+
+
+class _FakeClock:
+    """time.perf_counter / time.monotonic of a fake host whose step costs what we say."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def perf_counter(self):
+        return self.t
+
+    def monotonic(self):
+        return self.t
+
+
+@pytest.mark.parametrize('slowdown', [1.0, 1.25])
+def test_a_tick_steps_until_the_next_is_due_less_its_publishing(h, monkeypatch, slowdown):
+    """The steps end by the timer's next call less the publish cost and TICK_MARGIN, and
+    use that time, also when the step has got slower (up to 4/3) since the cost estimate:
+    the last batch is sized on the first one's measured cost. A fake clock, so no timing."""
+    import cosserat_ros.node as node_module
+    node = h.node
+    clock = _FakeClock()
+    monkeypatch.setattr(node_module, 'time', clock)
+    true_cost, batches = 1e-3, []
+
+    def step(n):
+        clock.t += n * true_cost
+        batches.append(n)
+    monkeypatch.setattr(node.sim, 'step', step)
+    monkeypatch.setattr(node.timer, 'time_until_next_call', lambda: 15_000_000)   # 15 ms
+    node._publish_cost = 2e-3
+    node._step_cost = true_cost / slowdown
+    budget = 15e-3 - 2e-3 - node_module.TICK_MARGIN
+    start = clock.t
+    done = node._advance(10 ** 6)
+    assert done == sum(batches) and len(batches) == 2
+    assert budget - true_cost < clock.t - start <= budget
+    # a tick that can take all the steps it wants takes them in one batch
+    batches.clear()
+    assert node._advance(3) == 3 and batches == [3]
+    # a tick that starts late still steps for a third of the period
+    batches.clear()
+    node.timer.time_until_next_call = lambda: 1_000_000
+    start = clock.t
+    node._advance(10 ** 6)
+    assert node.period / 3 - true_cost < clock.t - start <= node.period / 3
