@@ -13,6 +13,9 @@ The type lowers to LLVM's ``<4 x double>``; values stay in registers. Operations
 
 * ``vload(a, k)`` / ``vstore(a, k, v)``: lanes ``a.flat[k : k + 4]`` of a C-contiguous
   float64 array (no bounds check: the caller's layout guarantees the range);
+* ``vload3(a, k)``: three vectors from the 12 values ``a.flat[k : k + 12]``, lane l of
+  vector c being ``a.flat[k + 3 l + c]`` (four consecutive rows of an (n, 3) array, one
+  vector per column: one 96-byte load and three shuffles instead of twelve scalar loads);
 * ``splat(s)``: all lanes s; ``vset(s0, s1, s2, s3)``: from four scalars; ``lane(v, l)``;
 * ``+ - * /`` and unary ``-`` (with a vector or a float on either side), ``vfma(a, b, c)``
   ``= a * b + c`` with one rounding, ``vsqrt``.
@@ -30,7 +33,7 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic, models, overload, register_model
 
-__all__ = ['f64x4', 'LANES', 'vload', 'vstore', 'splat', 'vset', 'lane', 'vfma', 'vsqrt']
+__all__ = ['f64x4', 'LANES', 'vload', 'vload3', 'vstore', 'splat', 'vset', 'lane', 'vfma', 'vsqrt']
 
 #: lanes of one vector (AVX: 4 x float64)
 LANES = 4
@@ -71,6 +74,27 @@ def vload(typingctx, a, k):
     def codegen(context, builder, sig, args):
         return builder.load(_vector_pointer(context, builder, sig.args[0], *args), align=8)
     return f64x4(a, k), codegen
+
+
+_V12 = ir.VectorType(ir.DoubleType(), 3 * LANES)
+
+
+@intrinsic
+def vload3(typingctx, a, k):
+    """(c0, c1, c2), lane l of c_j = a.flat[k + 3 l + j]: the columns of the four rows of
+    an (n, 3) array that start at flat index k."""
+    _check_array(a)
+
+    def codegen(context, builder, sig, args):
+        data = context.make_array(sig.args[0])(context, builder, args[0]).data
+        v = builder.load(builder.bitcast(builder.gep(data, [args[1]]), _V12.as_pointer()),
+                         align=8)
+        cols = [builder.shuffle_vector(v, ir.Constant(_V12, ir.Undefined),
+                                       ir.Constant(ir.VectorType(ir.IntType(32), LANES),
+                                                   [3 * l + j for l in range(LANES)]))
+                for j in range(3)]
+        return context.make_tuple(builder, sig.return_type, cols)
+    return types.UniTuple(f64x4, 3)(a, k), codegen
 
 
 @intrinsic

@@ -16,7 +16,7 @@ import cosserat_ros
 from cosserat_ros import compiled
 from cosserat_ros.forces import lane_layout
 from cosserat_ros.mesh import ClothMesh, grid_mesh
-from cosserat_ros.simd import lane, splat, vfma, vload, vset, vsqrt, vstore
+from cosserat_ros.simd import lane, splat, vfma, vload, vload3, vset, vsqrt, vstore
 from cosserat_ros.simulator import ClothSimulator, Material
 
 
@@ -143,6 +143,22 @@ def test_simd_vectors_compute_lane_by_lane_like_numpy():
     assert np.allclose(out, ref, rtol=1e-15, atol=0)
 
 
+@nb.njit
+def _columns(a, k, out):
+    c0, c1, c2 = vload3(a, k)
+    vstore(out, 0, c0)
+    vstore(out, 4, c1)
+    vstore(out, 8, c2)
+
+
+def test_vload3_splits_four_rows_into_their_columns():
+    a = np.arange(30.0).reshape(10, 3) * 1.5 - 7.0
+    out = np.zeros(12)
+    for row in (0, 3, 6):
+        _columns(a, 3 * row, out)
+        assert np.array_equal(out.reshape(3, 4), a[row:row + 4].T)
+
+
 @pytest.mark.parametrize('lanes', [1, 4])
 def test_lane_layout_is_a_permutation_of_whole_stencils(lanes):
     st_ptr = np.cumsum([0] + [3, 5, 3, 3, 5, 3, 4, 3, 5, 5, 5, 3])
@@ -162,11 +178,26 @@ def test_lane_layout_is_a_permutation_of_whole_stencils(lanes):
             e = g_wptr[g, 1] + lanes * s + l                  # its entry block: offsets
             assert list(i + ln_idx[e]) == list(st_idx[st_ptr[i] + s])
             assert list(ln_sigma[e]) == list(st_sigma[st_ptr[i] + s])
+        rows = (np.array_equal(verts, verts[0] + np.arange(lanes))    # g_wptr[g, 3]
+                and len({tuple(st_idx[st_ptr[i]:st_ptr[i + 1]] - i) for i in verts}) == 1)
+        assert g_wptr[g, 3] == (lanes == 4 and rows)
     for u, i in enumerate(s_vert):                            # leftovers: plain CSR blocks
         assert list(pos[st_ptr[i]:st_ptr[i + 1]]) == list(range(s_ptr[u], s_ptr[u + 1]))
         assert list(ln_idx[s_ptr[u]:s_ptr[u + 1]]) == list(st_idx[st_ptr[i]:st_ptr[i + 1]])
     if lanes == 4:      # sizes 3 (x6), 5 (x5), 4 (x1): one group of each of 3 and 5
         assert len(g_vert) == 2 and len(s_vert) == 4
+
+
+def test_lane_layout_flags_groups_whose_neighbours_are_rows():
+    """g_wptr[g, 3]: the lanes are four consecutive vertices, with the same offsets."""
+    n = 10
+    st_idx = np.array([[i, i + 1, i + 2] for i in range(8)] + [[8, 7, 6], [9, 8, 7]])
+    st_idx[6] = (6, 5, 7)            # the second group: consecutive, other offsets
+    st_ptr = np.arange(0, 3 * n + 1, 3)
+    g_vert, _, g_wptr, s_vert, *_ = lane_layout(st_ptr, np.zeros(n, dtype=np.int64),
+                                                st_idx.ravel(), np.zeros(3 * n))
+    assert g_vert.tolist() == [[0, 1, 2, 3], [4, 5, 6, 7]] and s_vert.tolist() == [8, 9]
+    assert g_wptr[:, 3].tolist() == [1, 0]
 
 
 @pytest.mark.parametrize('name', ['regular', 'irregular', 'icosphere'])
@@ -177,6 +208,8 @@ def test_simd_vertex_pass_matches_one_vertex_at_a_time(name):
     mat = Material(zeta=20.0, xi=1e-3, phi=1e-3, density=0.2)
     sims = [ClothSimulator(mesh, mat, dt=1e-4, check_dt=False, simd=f) for f in (True, False)]
     assert sims[0]._ops[19].shape[0] > 0 and sims[1]._ops[19].shape[0] == 0
+    # the regular sheet has groups whose neighbours are rows of x (simd.vload3)
+    assert sims[0]._ops[21][:, 3].any() == (name == 'regular')
     x = mesh.vertices + 0.02 * np.random.default_rng(4).standard_normal(mesh.vertices.shape)
     f, e = [], []
     for sim in sims:
