@@ -61,9 +61,10 @@ def _check_array(a):
         raise TypeError(f'f64x4 load/store needs a C-contiguous float64 array, got {a}')
 
 
-def _vector_pointer(context, builder, arrty, arr, k):
+def _vector_pointer(context, builder, arrty, arr, k, vt=_VT):
+    """Pointer to a.flat[k] as a pointer to the vector type ``vt``."""
     data = context.make_array(arrty)(context, builder, arr).data
-    return builder.bitcast(builder.gep(data, [k]), _VT.as_pointer())
+    return builder.bitcast(builder.gep(data, [k]), vt.as_pointer())
 
 
 @intrinsic
@@ -86,8 +87,7 @@ def vload3(typingctx, a, k):
     _check_array(a)
 
     def codegen(context, builder, sig, args):
-        data = context.make_array(sig.args[0])(context, builder, args[0]).data
-        v = builder.load(builder.bitcast(builder.gep(data, [args[1]]), _V12.as_pointer()),
+        v = builder.load(_vector_pointer(context, builder, sig.args[0], *args, vt=_V12),
                          align=8)
         cols = [builder.shuffle_vector(v, ir.Constant(_V12, ir.Undefined),
                                        ir.Constant(ir.VectorType(ir.IntType(32), LANES),
