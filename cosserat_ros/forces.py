@@ -911,8 +911,9 @@ def gather_forces(vf_ptr, vf_row, fgrad, tr_ptr, tr_slot, contrib, force):
 @kernel(parallel=True)
 def energy_densities(eps, kap, epsbar, estab, faces, face_area, vf_ptr, vf_face, dual_area,
                      ainv, zeta, xi, phi, out):
-    """Per-vertex energy densities [J/m^2] out (n,3): stretching (dual-area average of the
-    incident triangles' W_m), bending xi B(kap, kap), coupling phi B(epsbar, kap)."""
+    """Per-vertex energy densities [J/m^2] in out[:, 0:3] (out (n,3) or wider): stretching
+    (dual-area average of the incident triangles' W_m), bending xi B(kap, kap), coupling
+    phi B(epsbar, kap)."""
     n = out.shape[0]
     for i in nb.prange(n):
         s = 0.0
@@ -932,6 +933,54 @@ def energy_densities(eps, kap, epsbar, estab, faces, face_area, vf_ptr, vf_face,
                                   kap[i, 0], kap[i, 1], kap[i, 2]) + estab[i] / dual_area[i]
         out[i, 2] = phi * bilinear(i11, i12, i22, epsbar[i, 0], epsbar[i, 1], epsbar[i, 2],
                                    kap[i, 0], kap[i, 1], kap[i, 2])
+
+
+@kernel()
+def energy_totals(dens, dual_area, force, f_applied, mass, damp, v, x, pinned, gravity, dt,
+                  out):
+    """The sums of the energy report (simulator ``energy_and_densities``) in one pass, from
+    the densities ``dens`` (n,4) of :func:`energy_densities` in its first three columns:
+
+    * ``dens[:, 3]`` = their sum per vertex (the total density);
+    * ``out[0:3]`` = sum_i A_i dens_i: the stretching, bending and coupling energy [J];
+    * ``out[3]`` = kinetic energy 1/2 sum_i m_i |v_i + dt/2 a_i|^2 of the leapfrog velocity
+      carried to the positions' time, with ``m_i a_i = f_i + f_applied_i + m_i g - c_i v_i``
+      (the step's acceleration, :func:`.integrator._update`) and 0 at pinned vertices;
+    * ``out[4]`` = -sum_i m_i g . x_i, the gravity potential [J].
+
+    Serial, in vertex order: the sums are the same numbers on any thread count."""
+    n = dens.shape[0]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    kin = 0.0
+    pot = 0.0
+    g0 = gravity[0]
+    g1 = gravity[1]
+    g2 = gravity[2]
+    h = 0.5 * dt
+    for i in range(n):
+        a = dual_area[i]
+        d0 = dens[i, 0]
+        d1 = dens[i, 1]
+        d2 = dens[i, 2]
+        dens[i, 3] = d0 + d1 + d2
+        s0 += a * d0
+        s1 += a * d1
+        s2 += a * d2
+        m = mass[i]
+        pot -= m * (x[i, 0] * g0 + x[i, 1] * g1 + x[i, 2] * g2)
+        if not pinned[i]:
+            c = damp[i]
+            w0 = v[i, 0] + h * (force[i, 0] + f_applied[i, 0] + m * g0 - c * v[i, 0]) / m
+            w1 = v[i, 1] + h * (force[i, 1] + f_applied[i, 1] + m * g1 - c * v[i, 1]) / m
+            w2 = v[i, 2] + h * (force[i, 2] + f_applied[i, 2] + m * g2 - c * v[i, 2]) / m
+            kin += m * (w0 * w0 + w1 * w1 + w2 * w2)
+    out[0] = s0
+    out[1] = s1
+    out[2] = s2
+    out[3] = 0.5 * kin
+    out[4] = pot
 
 
 # --------------------------------------------------------------------------- seed route

@@ -684,24 +684,19 @@ class ClothSimulator:
         if self._mat[2] != 0.0:
             _forces.face_coupling(self._x, o[0], o[1], o[2], o[3], cstress, fgrad)
         _forces.gather_forces(o[15], o[17], fgrad, o[13], tr_slot, contrib, f)
-        out = np.empty((self.mesh.n_vertices, 3))
+        if self._method != METHOD_VARIATIONAL:
+            f = self.internal_forces()
+        out = np.empty((self.mesh.n_vertices, 4))
         _forces.energy_densities(eps, kap, epsbar, estab, self.mesh.faces, self.mesh.face_areas,
                                  self.mesh.vf_ptr, self.mesh.vf_face, self.mesh.dual_areas,
                                  self._ainv, *self._mat, out)
+        sums = np.empty(5)
+        _forces.energy_totals(out, self.mesh.dual_areas, f, self._f_applied, self._mass,
+                              self._damp, self._v, self._x, self._pinned, self._gravity,
+                              self._dt, sums)
         dens = {'stretching': out[:, 0], 'bending': out[:, 1], 'coupling': out[:, 2],
-                'total': out.sum(axis=1)}
-        A = self.mesh.dual_areas
-        stretching = float(np.dot(A, dens['stretching']))
-        bending = float(np.dot(A, dens['bending']))
-        coupling = float(np.dot(A, dens['coupling']))
-        if self._method != METHOD_VARIATIONAL:
-            f = self.internal_forces()
-        m = self._mass[:, None]
-        acc = (f + self._f_applied + m * self._gravity[None, :] - self._damp[:, None] * self._v)
-        vs = self._v + 0.5 * self._dt * acc / m
-        vs[self._pinned] = 0.0
-        kinetic = 0.5 * float(np.sum(self._mass[:, None] * vs * vs))
-        gravity = -float(np.sum(self._mass * (self._x @ self._gravity)))
+                'total': out[:, 3]}
+        stretching, bending, coupling, kinetic, gravity = (float(e) for e in sums)
         elastic = stretching + bending + coupling
         energy = {'kinetic': kinetic, 'stretching': stretching, 'bending': bending,
                   'coupling': coupling, 'elastic': elastic, 'gravity': gravity,

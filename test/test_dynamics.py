@@ -215,6 +215,36 @@ def test_work_energy_balance_with_forces_and_damping():
     assert abs(balance) < 0.01 * max(e['external_work'], e['dissipated'])
 
 
+def test_energy_report_matches_its_definition():
+    # the report's compiled sums (forces.energy_totals) against their formulas in numpy,
+    # mid-motion, with every term of the acceleration and some vertices pinned
+    mesh = grid_mesh(10, 10, pattern='irregular', seed=2)
+    mat = Material(zeta=50.0, xi=1e-3, phi=1e-4, density=0.2, damping=0.5)
+    sim = ClothSimulator(mesh, mat, dt=2e-4)
+    sim.pin(np.flatnonzero(mesh.boundary_vertices)[::2])
+    sim.gravity = (0.5, 0, -9.81)
+    sim.force_field = (0.3, 0.0, -1.0)
+    sim.set_vertex_forces([40, 41], [[0, 0.02, -0.02], [0.01, 0, 0]])
+    sim.set_positions(_bump(mesh, 0.02))
+    sim.step(300)
+    e, dens = sim.energy_and_densities()
+    A = mesh.dual_areas
+    m = mat.density * A
+    f = sim.internal_forces() + sim._f_applied
+    a = (f + m[:, None] * sim.gravity - (mat.damping * A)[:, None] * sim.velocities) / m[:, None]
+    vs = sim.velocities + 0.5 * sim.dt * a
+    vs[sim.pinned] = 0.0
+    want = {'kinetic': 0.5 * np.sum(m[:, None] * vs * vs),
+            'gravity': -np.sum(m * (sim.positions @ sim.gravity))}
+    for key in ('stretching', 'bending', 'coupling'):
+        want[key] = A @ dens[key]
+    assert all(want[k] > 0 for k in ('kinetic', 'stretching', 'bending'))
+    for key, value in want.items():
+        assert e[key] == pytest.approx(value, rel=1e-12), key
+    assert np.array_equal(dens['total'], dens['stretching'] + dens['bending'] + dens['coupling'])
+    assert e['total'] == pytest.approx(e['kinetic'] + e['elastic'] + e['gravity'], rel=1e-12)
+
+
 def test_damped_cloth_returns_to_rest():
     # seed Sec. 6.5 / Fig. 6: stretch by a central force, release, come back
     mesh = grid_mesh(16, 16, pattern='alternating')
