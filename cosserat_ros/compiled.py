@@ -40,7 +40,7 @@ __all__ = ['kernel', 'invalidate_stale_cache']
 
 #: every module of the package that defines or inlines numba kernels
 KERNEL_MODULES = ('compiled.py', 'forces.py', 'geometry.py', 'integrator.py', 'material.py',
-                  'simd.py', 'surface_query.py')
+                  'simd.py', 'surface_query.py', 'workshare.py')
 
 
 #: fast-math flags of the kernels: fused multiply-add only

@@ -186,11 +186,16 @@ class ClothSimulator:
         # so that rows in use by two threads never share one (false sharing)
         smax = -(-LANES * int(np.diff(self._jet.st_ptr).max()) // 8) * 8 + 8
         # eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch (a row per chunk; the
-        # tiled step uses the row of each part's first chunk)
+        # tiled step uses the row of each part's first chunk), the work-sharing state (a
+        # range per thread that numba may run: workshare.py) and the update's sums per
+        # chunk of vertices (integrator.integrate)
         self._work = (np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
                       np.zeros((3, len(self._jet.st_idx))),
-                      np.zeros((nch, 5, smax)))
+                      np.zeros((nch, 5, smax)), np.zeros(numba.config.NUMBA_NUM_THREADS + 1,
+                                                         dtype=np.int64),
+                      np.zeros((nch, 3)))
+        self._work[8][0] = numba.get_num_threads()
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -632,6 +637,7 @@ class ClothSimulator:
         if n == 0:
             return
         backup = (self._x.copy(), self._v.copy(), self._acc.copy())
+        self._work[8][0] = numba.get_num_threads()      # the ranges of workshare.py
         args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
                 self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
         if self._method == METHOD_VARIATIONAL:
@@ -661,6 +667,7 @@ class ClothSimulator:
         return out
 
     def _internal(self, x, out):
+        self._work[8][0] = numba.get_num_threads()
         if self._method == METHOD_VARIATIONAL:
             variational_forces(x, self._ops, self._mat, self._work, out)
         else:
@@ -674,7 +681,7 @@ class ClothSimulator:
         # of their own fills them and the face and stencil gradients, the latter in CSR
         # order (the contrib and fgrad work arrays; the next step rewrites them), and the
         # force is the gather of those through the CSR transposed stencil
-        eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work
+        eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch = self._work[:8]
         o = self._ops
         wptr, w, uv, sigma, tr_slot = self._csr
         _forces.vertex_fields(self._x, o[0], o[1], o[2], self._mat[0], o[7], wptr, o[8], w, uv,

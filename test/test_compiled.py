@@ -1,5 +1,6 @@
-"""The numba set-up: one option set, stale caches of cross-file kernels are dropped, and the
-explicit SIMD vectors of the vertex pass compute what the one-vertex-at-a-time code does."""
+"""The numba set-up: one option set, stale caches of cross-file kernels are dropped, the
+explicit SIMD vectors of the vertex pass compute what the one-vertex-at-a-time code does, and
+the threads' sharing of work changes who computes what, not what is computed."""
 import os
 import pathlib
 import re
@@ -15,9 +16,11 @@ import trimesh
 import cosserat_ros
 from cosserat_ros import compiled
 from cosserat_ros.forces import lane_layout
+from cosserat_ros.integrator import run_variational
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simd import lane, splat, vfma, vload, vload3, vset, vsqrt, vstore
 from cosserat_ros.simulator import ClothSimulator, Material
+from cosserat_ros.workshare import split, take
 
 
 def test_every_kernel_module_is_hashed():
@@ -47,6 +50,7 @@ from cosserat_ros.forces import vertex_fields
 from cosserat_ros.integrator import integrate, variational_forces
 from cosserat_ros.mesh import grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
+from cosserat_ros.workshare import split, take
 assert warmup.kernels_cached()
 s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=0.0, density=0.1),
                    dt=1e-5, check_dt=False)
@@ -252,3 +256,64 @@ def test_faces_in_the_vertex_pass_match_their_own_pass(name):
         eps.append(sim.energy()['stretching'])      # strains from forces.vertex_fields
     assert eps[0] == eps[1] > 0
     assert np.abs(f[0] - f[1]).max() <= 1e-14 * np.abs(f[1]).max()
+
+
+@nb.njit
+def _take_moves(state, n, ranges, fronts, out):
+    nr = split(state, n)
+    for q in range(ranges.shape[0]):
+        out[q] = take(state, ranges[q] % nr, fronts[q])
+    return nr
+
+
+@pytest.mark.parametrize('n, nr', [(0, 1), (1, 3), (7, 2), (100, 1), (100, 2), (101, 5)])
+def test_work_sharing_hands_out_every_item_once(n, nr):
+    # owners (front) and thieves (back) in a random interleaving, serially: every item once,
+    # each range's front in increasing and back in decreasing order, then nothing
+    rng = np.random.default_rng(n + nr)
+    state = np.zeros(9, dtype=np.int64)
+    state[0] = nr
+    moves = 3 * n + 10
+    ranges = rng.integers(0, nr, moves)
+    fronts = rng.random(moves) < 0.6
+    out = np.empty(moves, dtype=np.int64)
+    assert _take_moves(state, n, ranges, fronts, out) == nr
+    got = out[out >= 0]
+    assert sorted(got.tolist()) == list(range(n))
+    bounds = [n * r // nr for r in range(nr + 1)]
+    for r in range(nr):
+        mine = (ranges == r) & (out >= 0)
+        assert np.all((out[mine] >= bounds[r]) & (out[mine] < bounds[r + 1]))
+        assert np.all(np.diff(out[mine & fronts]) > 0)
+        assert np.all(np.diff(out[mine & ~fronts]) < 0)
+    rest = np.empty(2 * nr, dtype=np.int64)
+    _take_moves(state, 0, np.arange(2 * nr), np.arange(2 * nr) % 2 == 0, rest)
+    assert (rest == -1).all()
+    state[0] = 0                                    # no count set: one range
+    assert _take_moves(state, 5, ranges[:0], fronts[:0], out) == 1 and state[1] == 5 << 32
+
+
+@pytest.mark.parametrize('phi', [0.0, 1e-3])
+def test_the_step_is_the_same_to_the_bit_however_the_threads_share_it(phi):
+    # the vertex pass and the update in 1, 2, 3 or 7 ranges (more than the threads: the
+    # ranges a thread does not own it takes from their back): the same trajectory and the
+    # same work and dissipation sums, to the bit
+    mesh = grid_mesh(23, 19, pattern='irregular', seed=1)
+    mat = Material(zeta=50.0, xi=1e-3, phi=phi, density=0.2, damping=0.3)
+    runs = []
+    for nr in (1, 2, 3, 7):
+        sim = ClothSimulator(mesh, mat, dt=1e-4)
+        sim.pin([0, 5])
+        sim.gravity = (0, 0, -9.81)
+        sim.force_field = (0.3, 0.0, 0.1)
+        share = np.zeros(9, dtype=np.int64)
+        share[0] = nr
+        work = sim._work[:8] + (share,) + sim._work[9:]
+        done = run_variational(300, sim._x, sim._v, sim._f_applied, sim._mass, sim._damp,
+                               sim._pinned, sim._gravity, sim.dt, 1e6, sim._acc, sim._ops,
+                               sim._mat, work, sim._force)
+        assert done == 300
+        runs.append((sim._x.copy(), sim._v.copy(), sim._acc.copy()))
+    assert runs[0][2][0] != 0 and runs[0][2][1] > 0           # work and dissipation
+    for run in runs[1:]:
+        assert all(np.array_equal(a, b) for a, b in zip(runs[0], run))

@@ -1,0 +1,99 @@
+"""Work sharing between the threads of a parallel pass: each thread its own range of work
+items first, then it takes the others' remaining items from their far ends.
+
+Why: numba splits a ``prange`` statically, one equal run of iterations per thread, so a pass
+lasts as long as its slowest thread. On the project's shared 2-core host the worker thread
+ran the same chunks of the vertex pass 1.3-1.4x slower than the calling thread (its core is
+shared with other guests; measured with the cycle counter per chunk), and the pass waited
+for it. numba's own dynamic schedule (``set_parallel_chunksize``) hands out every chunk
+through the threading layer and made the step 1.7-3.6x slower (docs/performance.md).
+
+Here a pass over ``n`` items runs ``prange(T)`` over T ranges (:func:`split`: T equal runs,
+as the static split would give each thread). ``state[0]`` holds T, which the caller sets
+from Python (``numba.get_num_threads()``: called in compiled code, it makes numba refuse to
+cache the kernel). Range r's state ``state[1 + r]`` is one int64, the run still to do:
+``front | back << 32``. The thread of range r takes items from its front (:func:`take`
+with ``front``) in order; when its range is empty it goes round the other ranges and takes
+their items from the back. A take is one compare-and-swap of that range's state, so every
+item is taken exactly once, and a thread keeps to its own part of the arrays unless it has
+run out of work. Any T >= 1 gives the same results; T = the threads numba runs is the
+fastest.
+
+Which thread runs an item changes from call to call; what the item computes does not. A
+pass that writes each item's results to places of their own (and sums per item, not per
+thread: see ``integrator.integrate``) therefore gives the same numbers to the bit as the
+static split. The intrinsics work only in compiled code.
+"""
+from __future__ import annotations
+
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+from .compiled import kernel
+
+__all__ = ['split', 'take']
+
+_LOW = 0xFFFFFFFF
+
+
+def _check_state(a):
+    if not (isinstance(a, types.Array) and a.dtype == types.int64 and a.ndim == 1):
+        raise TypeError(f'the work-sharing state must be a 1-D int64 array, got {a}')
+
+
+def _element_pointer(context, builder, sig, args):
+    arr = context.make_array(sig.args[0])(context, builder, args[0])
+    return cgutils.get_item_pointer(context, builder, sig.args[0], arr, [args[1]])
+
+
+@intrinsic
+def atomic_load(typingctx, a, i):
+    """``a[i]`` of an int64 array, read atomically (acquire)."""
+    _check_state(a)
+
+    def codegen(context, builder, sig, args):
+        return builder.load_atomic(_element_pointer(context, builder, sig, args), 'acquire', 8)
+    return types.int64(a, i), codegen
+
+
+@intrinsic
+def atomic_cas(typingctx, a, i, old, new):
+    """Compare and swap ``a[i]`` (int64): if it still holds ``old``, write ``new``; returns
+    whether it did (acquire-release on success)."""
+    _check_state(a)
+
+    def codegen(context, builder, sig, args):
+        res = builder.cmpxchg(_element_pointer(context, builder, sig, args), args[2], args[3],
+                              'acq_rel', 'monotonic')
+        return builder.extract_value(res, 1)
+    return types.boolean(a, i, old, new), codegen
+
+
+@kernel(inline='always')
+def split(state, n):
+    """Split the items 0..n-1 (n < 2**31) into ``state[0]`` equal runs (at least one, at most
+    ``len(state) - 1``), set their states and return their number; call it before the
+    parallel loop, in the calling thread."""
+    nr = max(1, min(state[0], state.shape[0] - 1))
+    for r in range(nr):
+        state[1 + r] = ((n * (r + 1) // nr) << 32) | (n * r // nr)
+    return nr
+
+
+@kernel(inline='always')
+def take(state, r, front):
+    """The next item of range r, from its front (its own thread) or its back (another
+    thread, whose own range is done); -1 if the range is empty."""
+    k = 1 + r
+    while True:
+        w = atomic_load(state, k)
+        f = w & _LOW
+        b = w >> 32
+        if f >= b:
+            return -1
+        if front:
+            if atomic_cas(state, k, w, (b << 32) | (f + 1)):
+                return f
+        elif atomic_cas(state, k, w, ((b - 1) << 32) | f):
+            return b - 1
