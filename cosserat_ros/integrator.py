@@ -22,7 +22,7 @@ import numpy as np
 from .compiled import kernel
 from .forces import (_gather, _vertex_chunk, covariant_forces, face_coupling, face_membrane,
                      gather_forces)
-from .workshare import split, take
+from .workshare import claim, split
 
 METHOD_VARIATIONAL = 0
 METHOD_COVARIANT = 1
@@ -77,17 +77,14 @@ def vertex_pass(x, ops, mat, work, with_faces):
     nch = tile_ch[tile_ch.shape[0] - 1]
     nr = split(share, nch)
     for t in nb.prange(nr):
-        for k in range(nr):
-            r = (t + k) % nr
-            while True:
-                c = take(share, r, k == 0)
-                if c < 0:
-                    break
-                _vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
-                              ln_idx, ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K,
-                              dual_area, ainv, rest_b, xi, phi, scratch, contrib, cstress,
-                              kap, epsbar, estab, fc_vert, f_dinv, f_area, zeta, fc_ptr,
-                              fc_tpl, fc_face, with_faces, fgrad, True)
+        c, k = claim(share, t, nr, 0)
+        while c >= 0:
+            _vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+                          ln_w, ln_uv, ln_sigma, stab, vf_ptr, vf_face, eps, vf_K, dual_area,
+                          ainv, rest_b, xi, phi, scratch, contrib, cstress, kap, epsbar, estab,
+                          fc_vert, f_dinv, f_area, zeta, fc_ptr, fc_tpl, fc_face, with_faces,
+                          fgrad, True)
+            c, k = claim(share, t, nr, k)
 
 
 @kernel()
@@ -212,33 +209,30 @@ def integrate(ops, work_arrays, gather, x, v, force, f_applied, mass, damp, pinn
     size = (n + nch - 1) // nch
     nr = split(share, nch)
     for t in nb.prange(nr):
-        for k in range(nr):
-            r = (t + k) % nr
-            while True:
-                c = take(share, r, k == 0)
-                if c < 0:
-                    break
-                work = 0.0
-                diss = 0.0
-                bad = 0
-                for i in range(c * size, min(n, (c + 1) * size)):
-                    if gather:
-                        f0, f1, f2 = _gather(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
-                        force[i, 0] = f0
-                        force[i, 1] = f1
-                        force[i, 2] = f2
-                    else:
-                        f0 = force[i, 0]
-                        f1 = force[i, 1]
-                        f2 = force[i, 2]
-                    w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt,
-                                      gravity[0], gravity[1], gravity[2], vmax2)
-                    work += w
-                    diss += d
-                    bad += b
-                part[c, 0] = work
-                part[c, 1] = diss
-                part[c, 2] = bad
+        c, k = claim(share, t, nr, 0)
+        while c >= 0:
+            work = 0.0
+            diss = 0.0
+            bad = 0
+            for i in range(c * size, min(n, (c + 1) * size)):
+                if gather:
+                    f0, f1, f2 = _gather(i, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib)
+                    force[i, 0] = f0
+                    force[i, 1] = f1
+                    force[i, 2] = f2
+                else:
+                    f0 = force[i, 0]
+                    f1 = force[i, 1]
+                    f2 = force[i, 2]
+                w, d, b = _update(i, x, v, f0, f1, f2, f_applied, mass, damp, pinned, dt,
+                                  gravity[0], gravity[1], gravity[2], vmax2)
+                work += w
+                diss += d
+                bad += b
+            part[c, 0] = work
+            part[c, 1] = diss
+            part[c, 2] = bad
+            c, k = claim(share, t, nr, k)
     bad = 0
     for c in range(nch):
         acc[0] += part[c, 0]

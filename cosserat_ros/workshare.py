@@ -14,7 +14,15 @@ from Python (``numba.get_num_threads()``: called in compiled code, it makes numb
 cache the kernel). Range r's state ``state[1 + r]`` is one int64, the run still to do:
 ``front | back << 32``. The thread of range r takes items from its front (:func:`take`
 with ``front``) in order; when its range is empty it goes round the other ranges and takes
-their items from the back. A take is one compare-and-swap of that range's state, so every
+their items from the back (:func:`claim` does both). A pass reads::
+
+    nr = split(state, n)
+    for t in prange(nr):
+        c, k = claim(state, t, nr, 0)
+        while c >= 0:
+            ...                            # item c
+            c, k = claim(state, t, nr, k)
+ A take is one compare-and-swap of that range's state, so every
 item is taken exactly once, and a thread keeps to its own part of the arrays unless it has
 run out of work. Any T >= 1 gives the same results; T = the threads numba runs is the
 fastest.
@@ -32,7 +40,7 @@ from numba.extending import intrinsic
 
 from .compiled import kernel
 
-__all__ = ['split', 'take']
+__all__ = ['split', 'take', 'claim']
 
 _LOW = 0xFFFFFFFF
 
@@ -97,3 +105,16 @@ def take(state, r, front):
                 return f
         elif atomic_cas(state, k, w, ((b - 1) << 32) | f):
             return b - 1
+
+
+@kernel(inline='always')
+def claim(state, t, nr, k):
+    """The next item for the thread of range t: from the k-th range on, counting from its
+    own (k = 0, taken from the front) round the others (taken from the back). Returns
+    (item, the k it came from), to pass back in; item -1 when every range is empty."""
+    while k < nr:
+        c = take(state, (t + k) % nr, k == 0)
+        if c >= 0:
+            return c, k
+        k += 1
+    return -1, k
