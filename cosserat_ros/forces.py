@@ -673,7 +673,7 @@ def _vertex_range(i0, i1, st_ptr, st_wptr, x, st_idx, st_w, st_uv, st_sigma, sta
     for the parallel loop of :func:`vertex_fields`, called once per work item. numba's
     parallel passes then see a call instead of the inlined vertex term, which took them
     ~12 s more to compile (cold start); a call per vertex (26 array arguments each) made
-    the energy report 1.2x slower than this."""
+    the energy report 1.15-1.2x slower than this."""
     for i in range(i0, i1):
         _vertex(i, st_ptr[i], st_ptr[i + 1], st_wptr[i], x, st_idx, st_w, st_uv, st_sigma,
                 stab, vf_ptr, vf_face, eps, vf_K, dual_area, ainv, rest_b, xi, phi, sc, ch,

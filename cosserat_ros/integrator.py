@@ -67,7 +67,8 @@ def vertex_pass(x, ops, mat, work, with_faces):
     from their far ends (:mod:`.workshare`, state ``work[8]``): the same chunks, the same
     results, but a thread whose core is slower or taken no longer holds up the pass.
     Paired against the static split of ``prange(nch)`` (same trajectory to the bit): the
-    step 0.85 / 0.96x at N = 40 / 20, with :func:`integrate` sharing its work too."""
+    step 0.87 / 0.97x at N = 40 / 20, again 0.94 / 0.99x in a slower minute, with
+    :func:`integrate` sharing its work too."""
     (_, _, _, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
      ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _, _, _, fc_vert, fc_tpl, f_dinv,

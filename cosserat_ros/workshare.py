@@ -3,9 +3,9 @@ items first, then it takes the others' remaining items from their far ends.
 
 Why: numba splits a ``prange`` statically, one equal run of iterations per thread, so a pass
 lasts as long as its slowest thread. On the project's shared 2-core host the worker thread
-ran the same chunks of the vertex pass 1.3-1.4x slower than the calling thread (its core is
-shared with other guests; measured with the cycle counter per chunk), and the pass waited
-for it. numba's own dynamic schedule (``set_parallel_chunksize``) hands out every chunk
+ran the same chunks of the vertex pass 1.3-1.4x slower than the calling thread (measured
+with the cycle counter per chunk; one thread alone runs both halves equally fast), and the
+pass waited for it. numba's own dynamic schedule (``set_parallel_chunksize``) hands out every chunk
 through the threading layer and made the step 1.7-3.6x slower (docs/performance.md).
 
 Here a pass over ``n`` items runs ``prange(T)`` over T ranges (:func:`split`: T equal runs,
@@ -22,10 +22,10 @@ their items from the back (:func:`claim` does both). A pass reads::
         while c >= 0:
             ...                            # item c
             c, k = claim(state, t, nr, k)
- A take is one compare-and-swap of that range's state, so every
-item is taken exactly once, and a thread keeps to its own part of the arrays unless it has
-run out of work. Any T >= 1 gives the same results; T = the threads numba runs is the
-fastest.
+
+A take is one compare-and-swap of that range's state, so every item is taken exactly once,
+and a thread keeps to its own part of the arrays unless it has run out of work. Any T >= 1
+gives the same results; T = the threads numba runs is the fastest.
 
 Which thread runs an item changes from call to call; what the item computes does not. A
 pass that writes each item's results to places of their own (and sums per item, not per
