@@ -195,7 +195,7 @@ class ClothSimulator:
                       np.zeros((nch, 5, smax)), np.zeros(numba.config.NUMBA_NUM_THREADS + 1,
                                                          dtype=np.int64),
                       np.zeros((nch, 3)))
-        self._work[8][0] = numba.get_num_threads()
+        self._share_threads()
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -442,6 +442,13 @@ class ClothSimulator:
     def _update_applied(self):
         self._f_applied = self._f_vertex + self._mass[:, None] * self._force_field[None, :]
 
+    def _share_threads(self) -> None:
+        """Set the work-sharing state's range count (``work[8][0]``, workshare.py) to the
+        threads numba runs now; called from Python before the compiled passes that share
+        their work, because ``numba.get_num_threads()`` in compiled code makes numba refuse
+        to cache the kernel. A stale count gives the same numbers, only slower."""
+        self._work[8][0] = numba.get_num_threads()
+
     @staticmethod
     def _check_positive(value, name: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
@@ -637,7 +644,7 @@ class ClothSimulator:
         if n == 0:
             return
         backup = (self._x.copy(), self._v.copy(), self._acc.copy())
-        self._work[8][0] = numba.get_num_threads()      # the ranges of workshare.py
+        self._share_threads()
         args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
                 self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
         if self._method == METHOD_VARIATIONAL:
@@ -667,7 +674,7 @@ class ClothSimulator:
         return out
 
     def _internal(self, x, out):
-        self._work[8][0] = numba.get_num_threads()
+        self._share_threads()
         if self._method == METHOD_VARIATIONAL:
             variational_forces(x, self._ops, self._mat, self._work, out)
         else:

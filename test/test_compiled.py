@@ -50,7 +50,6 @@ from cosserat_ros.forces import vertex_fields
 from cosserat_ros.integrator import integrate, variational_forces
 from cosserat_ros.mesh import grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
-from cosserat_ros.workshare import split, take
 assert warmup.kernels_cached()
 s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=0.0, density=0.1),
                    dt=1e-5, check_dt=False)
