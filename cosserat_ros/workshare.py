@@ -31,6 +31,10 @@ Which thread runs an item changes from call to call; what the item computes does
 pass that writes each item's results to places of their own (and sums per item, not per
 thread: see ``integrator.integrate``) therefore gives the same numbers to the bit as the
 static split. The intrinsics work only in compiled code.
+
+:func:`arrive` is a barrier on the same compare-and-swap, for a region that runs several
+passes one after the other (``integrator.vertex_pass`` with steps): 0.14 us per crossing
+here, against 2.2 us for a parallel region of its own.
 """
 from __future__ import annotations
 
@@ -40,7 +44,7 @@ from numba.extending import intrinsic
 
 from .compiled import kernel
 
-__all__ = ['split', 'take', 'claim']
+__all__ = ['split', 'take', 'claim', 'arrive']
 
 _LOW = 0xFFFFFFFF
 
@@ -118,3 +122,20 @@ def claim(state, t, nr, k):
             return c, k
         k += 1
     return -1, k
+
+
+@kernel(inline='always')
+def arrive(sync, k, n):
+    """Barrier of ``n`` threads inside one parallel region: the k-th time (from 1) a thread
+    calls it, it returns once all n have called it k times. ``sync[0]``, zero before the
+    region, counts the arrivals (one compare-and-swap each) and never goes back, so no
+    sense flag is needed. It costs ~0.14 us here, against ~2.2 us for opening a parallel
+    region. Every one of the n threads must be running at once: the caller's ``prange``
+    has exactly as many iterations as the threads numba runs, one per thread."""
+    while True:
+        w = atomic_load(sync, 0)
+        if atomic_cas(sync, 0, w, w + 1):
+            break
+    target = k * n
+    while atomic_load(sync, 0) < target:
+        pass
