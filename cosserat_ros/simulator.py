@@ -33,11 +33,12 @@ from .forces import DIVERGENCE_METHODS
 from .geometry import (build_jet_operator, compute_geometry, CURVATURE_ESTIMATORS,
                        Geometry)
 from .integrator import (METHOD_COVARIANT, METHOD_VARIATIONAL, run_covariant,
-                         run_tiled, run_variational, stability_limit,
+                         run_fused, run_tiled, run_variational, stability_limit,
                          variational_forces)
 from .material import Material
 from .mesh import ClothMesh
 from .simd import LANES
+from .workshare import start_threads
 
 __all__ = ['ClothSimulator', 'Material', 'SimulationDiverged', 'steps_tiled']
 
@@ -187,14 +188,21 @@ class ClothSimulator:
         smax = -(-LANES * int(np.diff(self._jet.st_ptr).max()) // 8) * 8 + 8
         # eps, cstress, kap, epsbar, estab, fgrad, contrib, scratch (a row per chunk; the
         # tiled step uses the row of each part's first chunk), the work-sharing state (a
-        # range per thread that numba may run: workshare.py) and the update's sums per
-        # chunk of vertices (integrator.integrate)
+        # range per thread that numba may run: workshare.py), the update's sums per
+        # chunk of vertices (integrator.integrate), and for the steps in one parallel
+        # region (integrator.run_fused) the update's own work-sharing state and the
+        # barrier's counter and the steps done
         self._work = (np.zeros((m, 3)), np.zeros((n, 3)),
                       np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros((m, 3, 3)),
                       np.zeros((3, len(self._jet.st_idx))),
                       np.zeros((nch, 5, smax)), np.zeros(numba.config.NUMBA_NUM_THREADS + 1,
                                                          dtype=np.int64),
-                      np.zeros((nch, 3)))
+                      np.zeros((nch, 3)),
+                      np.zeros(numba.config.NUMBA_NUM_THREADS + 1, dtype=np.int64),
+                      np.zeros(2, dtype=np.int64))
+        # the internal force alone through run_fused (one step of dt = 0): its velocities
+        # and sums, never read
+        self._fscratch = (np.zeros((n, 3)), np.zeros(2))
         self._share_threads()
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
@@ -442,12 +450,23 @@ class ClothSimulator:
     def _update_applied(self):
         self._f_applied = self._f_vertex + self._mass[:, None] * self._force_field[None, :]
 
-    def _share_threads(self) -> None:
-        """Set the work-sharing state's range count (``work[8][0]``, workshare.py) to the
-        threads numba runs now; called from Python before the compiled passes that share
-        their work, because ``numba.get_num_threads()`` in compiled code makes numba refuse
-        to cache the kernel. A stale count gives the same numbers, only slower."""
-        self._work[8][0] = numba.get_num_threads()
+    def _share_threads(self) -> int:
+        """Set the work-sharing states' range count (``work[8][0]``, ``work[10][0]``,
+        workshare.py) to the threads numba runs now; called from Python before the compiled
+        passes that share their work, because ``numba.get_num_threads()`` in compiled code
+        makes numba refuse to cache the kernel. A stale count gives the same numbers, only
+        slower.
+
+        Returns the thread count for the steps in one parallel region
+        (``integrator.run_fused``), or 0 where its barrier could wait forever: each of its
+        iterations must run on a thread of its own, at once, which numba's static schedule
+        (no ``set_parallel_chunksize``) on the OpenMP or workqueue layer does. numba picks
+        its layer at the first parallel call (``workshare.start_threads``)."""
+        nthr = numba.get_num_threads()
+        self._work[8][0] = nthr
+        self._work[10][0] = nthr
+        return nthr if start_threads() in ('omp', 'workqueue') \
+            and numba.get_parallel_chunksize() == 0 else 0
 
     @staticmethod
     def _check_positive(value, name: str) -> float:
@@ -644,12 +663,18 @@ class ClothSimulator:
         if n == 0:
             return
         backup = (self._x.copy(), self._v.copy(), self._acc.copy())
-        self._share_threads()
+        nthr = self._share_threads()
         args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
                 self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
         if self._method == METHOD_VARIATIONAL:
-            run = run_tiled if self._tiled and self._mat[2] == 0.0 else run_variational
-            done = run(*args, self._mat, self._work, self._force)
+            if self._mat[2] != 0.0:
+                done = run_variational(*args, self._mat, self._work, self._force)
+            elif self._tiled:
+                done = run_tiled(*args, self._mat, self._work, self._force)
+            elif nthr > 0:
+                done = run_fused(*args, self._mat, self._work, self._force, nthr)
+            else:
+                done = run_variational(*args, self._mat, self._work, self._force)
         else:
             done = run_covariant(*args, self._cov, self._mat, self._cwork, self._work,
                                  self._force)
@@ -674,9 +699,18 @@ class ClothSimulator:
         return out
 
     def _internal(self, x, out):
-        self._share_threads()
+        nthr = self._share_threads()
         if self._method == METHOD_VARIATIONAL:
-            variational_forces(x, self._ops, self._mat, self._work, out)
+            if self._mat[2] == 0.0 and not self._tiled and nthr > 0:
+                # the step's own kernel, one step of dt = 0 (x and v stay; the force is
+                # the same to the bit), so that the process compiles the vertex code once
+                v, acc = self._fscratch
+                v[:] = 0.0
+                run_fused(1, x.copy(), v, self._f_applied, self._mass, self._damp,
+                          self._pinned, self._gravity, 0.0, np.inf, acc, self._ops,
+                          self._mat, self._work, out, nthr)
+            else:
+                variational_forces(x, self._ops, self._mat, self._work, out)
         else:
             _forces.covariant_forces(x, self._ops, self._cov, self._mat, self._cwork, out)
 

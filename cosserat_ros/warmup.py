@@ -7,9 +7,12 @@ start-up (``ClothNode.__init__``) compiles, in this order: the mesh's set-up ker
 and the force behind the critical dt (``variational_forces``). Most of the step's
 compile is its big vertex pass. What comes after it depends on the step's kind:
 
-* the two-pass step (``run_variational``; small meshes, or a coupling) shares its vertex
-  pass with the critical dt's force; its update pass ``integrate`` (~5 s) and the energy
-  report do not depend on it. :func:`start` has a second process compile those two.
+* the two-pass step (small meshes, or a coupling) shares its vertex pass with the
+  critical dt's force: without coupling both run ``run_fused`` (all steps of a call in
+  one parallel region; the force is one step of dt = 0), with a coupling (or a threading
+  layer ``run_fused`` cannot use) ``run_variational`` and ``variational_forces`` share
+  ``vertex_pass``. The energy report and the coupled step's update pass ``integrate``
+  (~5 s) do not depend on it: :func:`start` has a second process compile those two.
 * the tiled step (``run_tiled``, :func:`simulator.steps_tiled`) has a vertex pass of its
   own, so the critical dt's force compiles a second big vertex pass (~30 s) after it;
   the second process compiles that force, then the energy report.
@@ -105,8 +108,8 @@ def start(tiled: bool = False) -> Optional[subprocess.Popen]:
 def main(lock: Optional[str] = None, tiled: bool = False) -> int:
     """Compile into the cache, with the argument types of the node's start-up (a small
     sheet has the same types as any other), what the node needs after its step's vertex
-    pass: for the two-pass step the update pass and the energy report (a coupling
-    phi != 0 adds the faces' coupling kernel), for the tiled step the critical dt's force
+    pass: for the two-pass step the energy report and the coupled step's update pass (a
+    coupling phi != 0 adds the faces' coupling kernel), for the tiled step the critical dt's force
     and the energy report. Then remove the lock file ``lock`` that :func:`start` took."""
     try:
         _compile_tiled() if tiled else _compile()
@@ -127,8 +130,10 @@ def _sheet(side: int, phi: float):
 
 def _compile_tiled():
     # the tiled and the two-pass step's operators have the same types: a small sheet does
+    from .integrator import variational_forces
     sim = _sheet(4, 0.0)
-    sim.internal_forces()           # variational_forces: the critical dt's force
+    # the tiled step's critical dt's force (a small sheet's goes through its step kernel)
+    variational_forces(sim._x, sim._ops, sim._mat, sim._work, sim._force.copy())
     sim.energy_and_densities()
 
 

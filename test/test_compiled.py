@@ -16,10 +16,10 @@ import trimesh
 import cosserat_ros
 from cosserat_ros import compiled
 from cosserat_ros.forces import lane_layout
-from cosserat_ros.integrator import run_variational
+from cosserat_ros.integrator import run_fused, run_variational, variational_forces
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simd import lane, splat, vfma, vload, vload3, vset, vsqrt, vstore
-from cosserat_ros.simulator import ClothSimulator, Material
+from cosserat_ros.simulator import ClothSimulator, Material, SimulationDiverged
 from cosserat_ros.workshare import split, take
 
 
@@ -55,7 +55,7 @@ s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=0.0, d
                    dt=1e-5, check_dt=False)
 s.energy_and_densities()
 if sys.argv[1] == 'tiled':
-    s.internal_forces()
+    variational_forces(s._x, s._ops, s._mat, s._work, s._force.copy())
     loaded = (vertex_fields, variational_forces)
 else:
     @nb.njit
@@ -295,24 +295,97 @@ def test_work_sharing_hands_out_every_item_once(n, nr):
 @pytest.mark.parametrize('phi', [0.0, 1e-3])
 def test_the_step_is_the_same_to_the_bit_however_the_threads_share_it(phi):
     # the vertex pass and the update in 1, 2, 3 or 7 ranges (more than the threads: the
-    # ranges a thread does not own it takes from their back): the same trajectory and the
-    # same work and dissipation sums, to the bit
+    # ranges a thread does not own it takes from their back), each step in its parallel
+    # regions or (phi = 0) all steps in one region with barriers: the same trajectory and
+    # the same work and dissipation sums, to the bit
     mesh = grid_mesh(23, 19, pattern='irregular', seed=1)
     mat = Material(zeta=50.0, xi=1e-3, phi=phi, density=0.2, damping=0.3)
     runs = []
     for nr in (1, 2, 3, 7):
-        sim = ClothSimulator(mesh, mat, dt=1e-4)
-        sim.pin([0, 5])
-        sim.gravity = (0, 0, -9.81)
-        sim.force_field = (0.3, 0.0, 0.1)
-        share = np.zeros(9, dtype=np.int64)
-        share[0] = nr
-        work = sim._work[:8] + (share,) + sim._work[9:]
-        done = run_variational(300, sim._x, sim._v, sim._f_applied, sim._mass, sim._damp,
-                               sim._pinned, sim._gravity, sim.dt, 1e6, sim._acc, sim._ops,
-                               sim._mat, work, sim._force)
-        assert done == 300
-        runs.append((sim._x.copy(), sim._v.copy(), sim._acc.copy()))
+        for one_region in ((False, True) if phi == 0.0 else (False,)):
+            sim = ClothSimulator(mesh, mat, dt=1e-4)
+            sim.pin([0, 5])
+            sim.gravity = (0, 0, -9.81)
+            sim.force_field = (0.3, 0.0, 0.1)
+            share, ushare = np.zeros(9, dtype=np.int64), np.zeros(9, dtype=np.int64)
+            share[0] = ushare[0] = nr
+            work = sim._work[:8] + (share,) + sim._work[9:10] + (ushare,) + sim._work[11:]
+            args = (300, sim._x, sim._v, sim._f_applied, sim._mass, sim._damp, sim._pinned,
+                    sim._gravity, sim.dt, 1e6, sim._acc, sim._ops, sim._mat, work, sim._force)
+            done = run_fused(*args, nb.get_num_threads()) if one_region \
+                else run_variational(*args)
+            assert done == 300
+            runs.append((sim._x.copy(), sim._v.copy(), sim._acc.copy()))
     assert runs[0][2][0] != 0 and runs[0][2][1] > 0           # work and dissipation
     for run in runs[1:]:
         assert all(np.array_equal(a, b) for a, b in zip(runs[0], run))
+
+
+def test_the_internal_force_through_the_one_region_step_is_the_same_to_the_bit(monkeypatch):
+    # the critical dt's force, one step of dt = 0 through run_fused (so that a process
+    # compiles the vertex code once), is the variational force; the state is left as it was
+    sim = ClothSimulator(grid_mesh(17, 13, pattern='irregular', seed=2),
+                         Material(zeta=50.0, xi=1e-3, phi=0.0, density=0.2, damping=0.3),
+                         dt=1e-4)
+    sim.pin([0, 5])
+    sim.gravity = (0, 0, -9.81)
+    sim.step(50)
+    x, v = sim.positions.copy(), sim.velocities.copy()
+    bent = x + 1e-3 * np.sin(np.arange(x.size)).reshape(x.shape)
+    ref, ref_bent, got_bent = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+    variational_forces(x, sim._ops, sim._mat, sim._work, ref)
+    variational_forces(bent, sim._ops, sim._mat, sim._work, ref_bent)
+    steps = []
+    monkeypatch.setattr('cosserat_ros.simulator.run_fused',
+                        lambda *a: steps.append(a[0]) or run_fused(*a))
+    got = sim.internal_forces()
+    sim._internal(bent, got_bent)
+    assert steps == ([1, 1] if sim._share_threads() > 0 else [])
+    assert np.array_equal(got, ref)
+    assert np.array_equal(got_bent, ref_bent) and not np.array_equal(ref_bent, ref)
+    assert np.array_equal(sim.positions, x) and np.array_equal(sim.velocities, v)
+
+
+def test_steps_in_one_parallel_region_stop_at_the_step_that_went_bad():
+    # one region for all steps: every thread must leave it at the same step, and step()
+    # restores the state from before the call, as with a region per pass
+    ends = []
+    for one_region in (False, True):
+        sim = ClothSimulator(grid_mesh(15, 15), Material(zeta=50.0, xi=1e-4, phi=0.0,
+                                                         density=0.2), dt=1e-4)
+        sim.pin([0, 15])
+        sim.gravity = (0, 0, -9.81)
+        sim.step(20)
+        x = sim.positions.copy()
+        sim._dt = 10 * sim.critical_dt()
+        work = sim._work
+        work[8][0] = work[10][0] = nb.get_num_threads()
+        args = (400, sim._x, sim._v, sim._f_applied, sim._mass, sim._damp, sim._pinned,
+                sim._gravity, sim.dt, sim._vmax ** 2, sim._acc, sim._ops, sim._mat, work,
+                sim._force)
+        done = run_fused(*args, nb.get_num_threads()) if one_region else run_variational(*args)
+        assert 0 < done < 400
+        ends.append((done, sim._x.copy()))
+        sim.set_positions(x)
+        with pytest.raises(SimulationDiverged):
+            sim.step(400)
+        assert np.array_equal(sim.positions, x)
+    assert ends[0][0] == ends[1][0]
+    assert np.array_equal(ends[0][1], ends[1][1], equal_nan=True)
+
+
+def test_one_region_per_call_only_where_every_iteration_gets_a_thread():
+    # the barrier of the one-region step waits for every iteration of its prange: it is
+    # used only with numba's static schedule on a layer that runs them all at once
+    sim = ClothSimulator(grid_mesh(6, 5), Material(zeta=50.0, xi=1e-4, phi=0.0, density=0.2),
+                         dt=1e-5, check_dt=False)
+    sim.step(1)
+    expect = nb.get_num_threads() if nb.threading_layer() in ('omp', 'workqueue') else 0
+    assert sim._share_threads() == expect
+    nb.set_parallel_chunksize(2)
+    try:
+        assert sim._share_threads() == 0
+        sim.step(3)                                 # the passes per region still step
+    finally:
+        nb.set_parallel_chunksize(0)
+    assert sim.step_count == 4
