@@ -320,6 +320,8 @@ def run_fused(nsteps, x, v, f_applied, mass, damp, pinned, gravity, dt, vmax2, a
     (``ClothSimulator._share_threads``). With ``nsteps`` = 1 and ``dt`` = 0 it is the
     internal force alone (in ``force``; x and v stay as they are), which the critical dt
     uses, so that a process compiles the vertex code once."""
+    # the operators unpacked as in vertex_pass: an inlined helper shared by the two
+    # (same bits, same speed) took a cold start 12 s longer to compile
     (_, _, _, _, dual_area, ainv, rest_b, _, _, _, ln_uv, ln_sigma, stab,
      _, _, vf_ptr, vf_face, _, vf_K, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
      ln_w, tile_ch, fc_ptr, fc_face, _, _, _, _, _, _, _, fc_vert, fc_tpl, f_dinv,
