@@ -38,7 +38,7 @@ from .integrator import (METHOD_COVARIANT, METHOD_VARIATIONAL, run_covariant,
 from .material import Material
 from .mesh import ClothMesh
 from .simd import LANES
-from .workshare import start_threads
+from .workshare import start_threads, usable_cpus
 
 __all__ = ['ClothSimulator', 'Material', 'SimulationDiverged', 'steps_tiled']
 
@@ -458,15 +458,17 @@ class ClothSimulator:
         slower.
 
         Returns the thread count for the steps in one parallel region
-        (``integrator.run_fused``), or 0 where its barrier could wait forever: each of its
-        iterations must run on a thread of its own, at once, which numba's static schedule
-        (no ``set_parallel_chunksize``) on the OpenMP or workqueue layer does. numba picks
-        its layer at the first parallel call (``workshare.start_threads``)."""
+        (``integrator.run_fused``), or 0 where its barrier could wait forever or spin
+        away the time of the threads it waits for: each of its iterations must run on a
+        thread of its own, at once, which numba's static schedule (no
+        ``set_parallel_chunksize``) on the OpenMP or workqueue layer does, and each
+        thread needs a CPU of its own (``workshare.usable_cpus``). numba picks its layer
+        at the first parallel call (``workshare.start_threads``)."""
         nthr = numba.get_num_threads()
         self._work[8][0] = nthr
         self._work[10][0] = nthr
         return nthr if start_threads() in ('omp', 'workqueue') \
-            and numba.get_parallel_chunksize() == 0 else 0
+            and numba.get_parallel_chunksize() == 0 and nthr <= usable_cpus() else 0
 
     @staticmethod
     def _check_positive(value, name: str) -> float:

@@ -38,6 +38,9 @@ here, against 2.2 us for a parallel region of its own.
 """
 from __future__ import annotations
 
+import functools
+import os
+
 import numba as nb
 import numpy as np
 from llvmlite import ir
@@ -46,7 +49,7 @@ from numba.extending import intrinsic
 
 from .compiled import kernel
 
-__all__ = ['split', 'take', 'claim', 'arrive', 'start_threads']
+__all__ = ['split', 'take', 'claim', 'arrive', 'start_threads', 'usable_cpus']
 
 _LOW = 0xFFFFFFFF
 
@@ -157,3 +160,25 @@ def start_threads() -> str:
     except ValueError:
         _first_region(np.zeros(2))
         return nb.threading_layer()
+
+
+@functools.lru_cache(maxsize=None)
+def usable_cpus() -> int:
+    """The CPUs this process can run on at once (read once): its affinity mask, capped by
+    a cgroup v2 CPU quota (``/sys/fs/cgroup/cpu.max``, rounded down). A spin barrier
+    (:func:`arrive`) is only for threads that each have a CPU of their own: with four
+    threads on these two CPUs the one-region step took 8 ms per step at N = 20 / 40,
+    against 0.2-0.4 ms for a parallel region per pass, whose OpenMP barrier goes to
+    sleep."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:                      # not on Linux
+        n = os.cpu_count() or 1
+    try:
+        with open('/sys/fs/cgroup/cpu.max') as fh:
+            quota, period = fh.read().split()[:2]
+        if quota != 'max':
+            n = min(n, max(1, int(quota) // int(period)))
+    except (OSError, ValueError):
+        pass
+    return n

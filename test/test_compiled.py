@@ -14,7 +14,7 @@ import pytest
 import trimesh
 
 import cosserat_ros
-from cosserat_ros import compiled
+from cosserat_ros import compiled, workshare
 from cosserat_ros.forces import lane_layout
 from cosserat_ros.integrator import run_fused, run_variational, variational_forces
 from cosserat_ros.mesh import ClothMesh, grid_mesh
@@ -374,18 +374,25 @@ def test_steps_in_one_parallel_region_stop_at_the_step_that_went_bad():
     assert np.array_equal(ends[0][1], ends[1][1], equal_nan=True)
 
 
-def test_one_region_per_call_only_where_every_iteration_gets_a_thread():
+def test_one_region_per_call_only_where_every_iteration_gets_a_thread(monkeypatch):
     # the barrier of the one-region step waits for every iteration of its prange: it is
-    # used only with numba's static schedule on a layer that runs them all at once
+    # used only with numba's static schedule on a layer that runs them all at once, and
+    # with no more threads than CPUs (spinning threads would take the CPU of those they
+    # wait for)
     sim = ClothSimulator(grid_mesh(6, 5), Material(zeta=50.0, xi=1e-4, phi=0.0, density=0.2),
                          dt=1e-5, check_dt=False)
     sim.step(1)
-    expect = nb.get_num_threads() if nb.threading_layer() in ('omp', 'workqueue') else 0
-    assert sim._share_threads() == expect
+    nthr = nb.get_num_threads()
+    ok = nb.threading_layer() in ('omp', 'workqueue') and nthr <= workshare.usable_cpus()
+    assert sim._share_threads() == (nthr if ok else 0)
     nb.set_parallel_chunksize(2)
     try:
         assert sim._share_threads() == 0
         sim.step(3)                                 # the passes per region still step
     finally:
         nb.set_parallel_chunksize(0)
-    assert sim.step_count == 4
+    monkeypatch.setattr('cosserat_ros.simulator.usable_cpus', lambda: nthr - 1)
+    assert sim._share_threads() == 0
+    sim.step(2)
+    assert sim.step_count == 6
+    assert 1 <= workshare.usable_cpus() <= (os.cpu_count() or 1)
