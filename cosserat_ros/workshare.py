@@ -167,8 +167,8 @@ def usable_cpus() -> int:
     """The CPUs this process can run on at once (read once): its affinity mask, capped by
     a cgroup v2 CPU quota (``/sys/fs/cgroup/cpu.max``, rounded down). A spin barrier
     (:func:`arrive`) is only for threads that each have a CPU of their own: with four
-    threads on these two CPUs the one-region step took 8 ms per step at N = 20 / 40,
-    against 0.2-0.4 ms for a parallel region per pass, whose OpenMP barrier goes to
+    threads on these two CPUs the one-region step took 8.1 ms per step at N = 20 / 40,
+    against 0.21 / 0.44 ms for a parallel region per pass, whose OpenMP barrier goes to
     sleep."""
     try:
         n = len(os.sched_getaffinity(0))
