@@ -203,7 +203,6 @@ class ClothSimulator:
         # the internal force alone through run_fused (one step of dt = 0): its velocities
         # and sums, never read
         self._fscratch = (np.zeros((n, 3)), np.zeros(2))
-        self._share_threads()
         self._cwork = (np.zeros((n, 3, 3)), np.zeros((n, 2, 2, 2)), np.zeros((n, 2, 2)),
                        np.zeros((n, 2, 2)), np.zeros((n, 2, 3)))
         self._force = np.zeros((n, 3))
@@ -219,6 +218,7 @@ class ClothSimulator:
         self._critical_dt: Optional[float] = None
         self._material = material
         self._set_material_arrays(material)
+        self._share_threads()
         self._dt = self._check_positive(dt, 'dt')
         if check_dt:
             self._warn_if_unstable(self._dt)
@@ -458,7 +458,9 @@ class ClothSimulator:
         slower.
 
         Returns the thread count for the steps in one parallel region
-        (``integrator.run_fused``), or 0 where its barrier could wait forever or spin
+        (``integrator.run_fused``, which :meth:`step` and the critical dt's force then
+        run), or 0 where it does not apply: any step but the variational one without
+        coupling below the tiled step's size, or where its barrier could wait forever or spin
         away the time of the threads it waits for: each of its iterations must run on a
         thread of its own, at once, which numba's static schedule (no
         ``set_parallel_chunksize``) on the OpenMP or workqueue layer does, and each
@@ -467,7 +469,9 @@ class ClothSimulator:
         nthr = numba.get_num_threads()
         self._work[8][0] = nthr
         self._work[10][0] = nthr
-        return nthr if start_threads() in ('omp', 'workqueue') \
+        fused = self._method == METHOD_VARIATIONAL and self._mat[2] == 0.0 \
+            and not self._tiled
+        return nthr if fused and start_threads() in ('omp', 'workqueue') \
             and numba.get_parallel_chunksize() == 0 and nthr <= usable_cpus() else 0
 
     @staticmethod
@@ -668,15 +672,11 @@ class ClothSimulator:
         nthr = self._share_threads()
         args = (n, self._x, self._v, self._f_applied, self._mass, self._damp, self._pinned,
                 self._gravity, self._dt, self._vmax ** 2, self._acc, self._ops)
-        if self._method == METHOD_VARIATIONAL:
-            if self._mat[2] != 0.0:
-                done = run_variational(*args, self._mat, self._work, self._force)
-            elif self._tiled:
-                done = run_tiled(*args, self._mat, self._work, self._force)
-            elif nthr > 0:
-                done = run_fused(*args, self._mat, self._work, self._force, nthr)
-            else:
-                done = run_variational(*args, self._mat, self._work, self._force)
+        if nthr > 0:
+            done = run_fused(*args, self._mat, self._work, self._force, nthr)
+        elif self._method == METHOD_VARIATIONAL:
+            run = run_tiled if self._tiled and self._mat[2] == 0.0 else run_variational
+            done = run(*args, self._mat, self._work, self._force)
         else:
             done = run_covariant(*args, self._cov, self._mat, self._cwork, self._work,
                                  self._force)
@@ -702,17 +702,16 @@ class ClothSimulator:
 
     def _internal(self, x, out):
         nthr = self._share_threads()
-        if self._method == METHOD_VARIATIONAL:
-            if self._mat[2] == 0.0 and not self._tiled and nthr > 0:
-                # the step's own kernel, one step of dt = 0 (x and v stay; the force is
-                # the same to the bit), so that the process compiles the vertex code once
-                v, acc = self._fscratch
-                v[:] = 0.0
-                run_fused(1, x.copy(), v, self._f_applied, self._mass, self._damp,
-                          self._pinned, self._gravity, 0.0, np.inf, acc, self._ops,
-                          self._mat, self._work, out, nthr)
-            else:
-                variational_forces(x, self._ops, self._mat, self._work, out)
+        if nthr > 0:
+            # the step's own kernel, one step of dt = 0 (x and v stay; the force is the
+            # same to the bit), so that the process compiles the vertex code once
+            v, acc = self._fscratch
+            v[:] = 0.0
+            run_fused(1, x.copy(), v, self._f_applied, self._mass, self._damp,
+                      self._pinned, self._gravity, 0.0, np.inf, acc, self._ops,
+                      self._mat, self._work, out, nthr)
+        elif self._method == METHOD_VARIATIONAL:
+            variational_forces(x, self._ops, self._mat, self._work, out)
         else:
             _forces.covariant_forces(x, self._ops, self._cov, self._mat, self._cwork, out)
 
