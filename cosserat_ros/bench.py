@@ -346,7 +346,7 @@ def part_node(watch_s: float):
             alone_rtf, alone_ms = step_rtf(probe)
             _node_params(params, 40, mat, dt, pinned)
             _, rate, rtf = run_node(params, watch_s)
-            print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.2f} | '
+            print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.3f} | '
                   f'{alone_rtf:.2f} | {alone_ms:.3f} |', flush=True)
 
 
