@@ -26,6 +26,8 @@ $(DEPS_STAMP): requirements.txt requirements-dev.txt
 # site-packages, executables into $(VENV)/lib/cosserat_ros (where `ros2 run` looks), data
 # files (package.xml, config, ament index marker) into $(VENV)/share.
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
+	# the previous install's files first (a module moved or removed must not linger)
+	if [ -f build/install-record.txt ]; then xargs -d '\n' rm -f < build/install-record.txt; fi
 	rm -rf build/cosserat_ros_install && mkdir -p build
 	$(PY) setup.py --quiet egg_info --egg-base build \
 	    build --build-base build/cosserat_ros_install \
@@ -40,14 +42,14 @@ test: $(PKG_STAMP)
 	$(ENV) $(VENV)/bin/pytest -q test
 
 validate: $(PKG_STAMP)
-	$(ENV) $(PY) -m cosserat_ros.validate --out docs
+	$(ENV) $(PY) -m cosserat_ros.tools.validate --out docs
 
 $(BENCH_STAMP): $(DEPS_STAMP) requirements-bench.txt
 	$(PY) -m pip install --quiet -r requirements-bench.txt
 	touch $@
 
 bench: $(PKG_STAMP) $(BENCH_STAMP)
-	$(ENV) $(PY) -m cosserat_ros.bench
+	$(ENV) $(PY) -m cosserat_ros.tools.bench
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,9 +1,19 @@
 """cosserat_ros: cloth simulation on the elastic Cosserat surface, served as a ROS 2 node.
 
-The simulator core (``mesh``, ``geometry``, ``material``, ``forces``, ``integrator``,
-``simulator``, ``scenarios``) imports no ROS module; ``node`` and the tools built on it do.
+Sub-packages (reading order for a newcomer in ``README.md``, *Layout*):
+
+* ``core``: the simulator, no ROS import: mesh, geometry, material, the model (frozen rest
+  data), state and controls, the energy terms (``core/terms``: one module each), the
+  solvers (``core/solvers``) and the ``ClothSimulator`` facade;
+* ``fast``: the compiled step of the elastic terms (SIMD lanes, work sharing, tiles),
+  tested against the terms of ``core/terms``;
+* ``ros``: the ``cloth_node`` executable (parameters, commands, pacing, messages);
+* ``tools``: ``record``, ``render``, ``make bench`` and ``make validate``.
+
+``cosserat_ros.mesh`` and ``cosserat_ros.simulator`` are the documented entry points of the
+library; they re-export the core.
 """
 
-from . import compiled as _compiled  # noqa: F401  (drops stale kernel caches first)
+from .core import compiled as _compiled  # noqa: F401  (drops stale kernel caches first)
 
 __version__ = '0.1.0'

@@ -4,7 +4,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from cosserat_ros import bench, peer_mujoco as peer
+from cosserat_ros.tools import bench, peer_mujoco as peer
 
 
 def test_our_row_is_measured():

@@ -1,6 +1,6 @@
 """Forces, integration and energies of the Cosserat surface against theory.
 
-Plate and beam studies use the shared systems of ``cosserat_ros.scenarios`` at 20 and 40
+Plate and beam studies use the shared systems of ``cosserat_ros.core.scenarios`` at 20 and 40
 segments; ``make validate`` runs them up to 80 and writes docs/validation.md.
 """
 import warnings
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cosserat_ros import scenarios as sc
+from cosserat_ros.core import scenarios as sc
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material, SimulationDiverged
 
@@ -230,7 +230,7 @@ def test_energy_report_matches_its_definition():
     e, dens = sim.energy_and_densities()
     A = mesh.dual_areas
     m = mat.density * A
-    f = sim.internal_forces() + sim._f_applied
+    f = sim.internal_forces() + sim.control.f_applied
     a = (f + m[:, None] * sim.gravity - (mat.damping * A)[:, None] * sim.velocities) / m[:, None]
     vs = sim.velocities + 0.5 * sim.dt * a
     vs[sim.pinned] = 0.0

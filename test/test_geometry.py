@@ -235,7 +235,7 @@ def test_geometry_arrays_have_documented_shapes():
 
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_stencil_templates_share_weights_of_equal_shapes_only(pattern):
-    from cosserat_ros.geometry import build_jet_operator
+    from cosserat_ros.core.geometry import build_jet_operator
     mesh = grid_mesh(16, 12, pattern=pattern, seed=4)
     jet = build_jet_operator(mesh)
     n = mesh.n_vertices

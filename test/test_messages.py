@@ -9,7 +9,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from cosserat_ros.mesh import grid_mesh
-from cosserat_ros.messages import colormap, mesh_marker_array
+from cosserat_ros.ros.conversions import colormap, mesh_marker_array
 
 
 def slow_marker_array(x, faces, col, stamp_ns, frame, edges, pins, pin_size=0.02):

@@ -17,7 +17,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from cosserat_ros.node import ClothNode, ConfigError, percentile, pin_set
+from cosserat_ros.ros import pacing
+from cosserat_ros.ros.node import ClothNode, ConfigError, percentile, pin_set
 
 N = 8
 OVERRIDES = {'mesh.nx': N, 'mesh.ny': N, 'publish_rate': 50.0, 'status_period': 0.0,
@@ -309,61 +310,69 @@ class _FakeClock:
 
 
 @pytest.mark.parametrize('slowdown', [1.0, 1.25])
-def test_a_tick_steps_until_the_next_is_due_less_its_publishing(h, monkeypatch, slowdown):
+def test_a_tick_steps_until_the_next_is_due_less_its_publishing(monkeypatch, slowdown):
     """The steps end by the timer's next call less the publish cost and TICK_MARGIN, and
     use that time, also when the step has got slower (up to 4/3) since the cost estimate:
     the last batch is sized on the first one's measured cost. A fake clock, so no timing."""
-    import cosserat_ros.node as node_module
-    node = h.node
     clock = _FakeClock()
-    monkeypatch.setattr(node_module, 'time', clock)
+    monkeypatch.setattr(pacing, 'time', clock)
     true_cost, batches = 1e-3, []
 
     def step(n):
         clock.t += n * true_cost
         batches.append(n)
-    monkeypatch.setattr(node.sim, 'step', step)
-    monkeypatch.setattr(node.timer, 'time_until_next_call', lambda: 15_000_000)   # 15 ms
-    node._publish_cost = 2e-3
-    node._step_cost = true_cost / slowdown
-    budget = 15e-3 - 2e-3 - node_module.TICK_MARGIN
+        return True
+    pacer = pacing.Pacer(1 / 50)
+    pacer.publish_cost = 2e-3
+    pacer.step_cost = true_cost / slowdown
+    budget = 15e-3 - 2e-3 - pacing.TICK_MARGIN
     start = clock.t
-    done = node._advance(10 ** 6)
+    done = pacer.advance(step, 10 ** 6, 15e-3)
     assert done == sum(batches) and len(batches) == 2
     assert budget - true_cost < clock.t - start <= budget
     # a tick that can take all the steps it wants takes them in one batch
     batches.clear()
-    assert node._advance(3) == 3 and batches == [3]
+    assert pacer.advance(step, 3, 15e-3) == 3 and batches == [3]
     # a tick that starts late still steps for a third of the period
     batches.clear()
-    monkeypatch.setattr(node.timer, 'time_until_next_call', lambda: 1_000_000)      # 1 ms
     start = clock.t
-    node._advance(10 ** 6)
-    assert node.period / 3 - true_cost < clock.t - start <= node.period / 3
+    pacer.advance(step, 10 ** 6, 1e-3)
+    assert pacer.period / 3 - true_cost < clock.t - start <= pacer.period / 3
+    # a step that reports a divergence ends the tick
+    assert pacer.advance(lambda n: False, 10, 15e-3) == 0
 
 
-def test_sim_time_keeps_wall_time_over_many_ticks(h, monkeypatch):
+def test_sim_time_keeps_wall_time_over_many_ticks(monkeypatch):
     """A tick steps the wall time since the last one in whole steps and carries what the
     rounding left: with 133.3 steps per period (50 Hz, dt = 1.5e-4 s) the sim time is
     within a step of the wall time after 300 ticks, where rounding each tick alone (133
     steps) falls 0.25% (15 ms) behind. Regular ticks on a fake clock."""
-    import cosserat_ros.node as node_module
-    node = h.node
     clock = _FakeClock()
-    monkeypatch.setattr(node_module, 'time', clock)
+    monkeypatch.setattr(pacing, 'time', clock)
     steps = []
 
     def step(n):
         clock.t += n * 1e-7
         steps.append(n)
-    monkeypatch.setattr(node.sim, 'step', step)
-    monkeypatch.setattr(node, 'publish_state', lambda: None)
-    monkeypatch.setattr(node.timer, 'time_until_next_call', lambda: int(node.period * 1e9))
-    node.sim.dt = 1.5e-4
-    node._last_tick = None          # forget the fixture's ticks on the real clock
+        return True
+    pacer = pacing.Pacer(1 / 50)
+    dt = 1.5e-4
     start = clock.t
     for k in range(300):
-        clock.t = start + k * node.period
-        node.tick()
-    assert not node._lagging
-    assert abs(sum(steps) * node.sim.dt - 300 * node.period) <= node.sim.dt
+        now = start + k * pacer.period
+        clock.t = now
+        wanted = pacer.wanted(now, dt)
+        pacer.carry(pacer.advance(step, wanted, pacer.period), wanted, dt, now)
+    assert not pacer.lagging
+    assert abs(sum(steps) * dt - 300 * pacer.period) <= dt
+
+
+def test_the_node_paces_its_ticks_with_its_pacer(h):
+    # the wiring: a tick after a restart steps one period, and the node's status reports
+    # the pacer's costs
+    h.node.pacer.restart()
+    before = h.node.sim.step_count
+    h.node.tick()
+    assert h.node.sim.step_count - before == round(h.node.period / h.node.sim.dt)
+    vals = {kv.key: kv.value for kv in h.node.diagnostics().status[0].values}
+    assert float(vals['step_cost_ms']) == pytest.approx(h.node.pacer.step_cost * 1e3)

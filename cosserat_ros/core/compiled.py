@@ -10,7 +10,7 @@
   This changes rounding only; none of the flags that assume no NaN or infinity (``nnan``,
   ``ninf``) is set, so the NaN checks stay valid, and summation order is kept.
 * :data:`REDUCTION` adds ``reassoc`` for the few stencil sums of the vertex pass (short
-  helper functions in forces.py), so that LLVM can split them over SIMD lanes. It changes
+  helper functions in ``core/terms/bending.py``), so that LLVM can split them over SIMD lanes. It changes
   the summation order of those sums only (results move by ~1e-15 relative, and stay
   deterministic); a NaN or inf still propagates.
 
@@ -23,11 +23,13 @@ arithmetic gives a float in numba, so the casts stay next to the loads.
 Stale caches
 ------------
 numba keys a cached function by the time stamp of its own source file only. A kernel that
-calls kernels of another file (``run_variational`` in integrator.py calls forces.py) keeps its
-cached machine code when only the callee's file changes, and an install that preserves
-time stamps (``setup.py install`` copies them) can leave such a stale step behind. On import,
-:func:`invalidate_stale_cache` therefore hashes every file with kernels and, when the hash
-differs from the one stored beside the cache, removes the package's cached kernels.
+calls kernels of another file (the step in ``fast/step.py`` inlines the terms of
+``core/terms/``) keeps its cached machine code when only the callee's file changes, and an
+install that preserves time stamps (``setup.py install`` copies them) can leave such a
+stale step behind. On import, :func:`invalidate_stale_cache` therefore hashes every Python
+file of the package and, when the hash differs from the one stored beside the cache,
+removes the package's cached kernels (every ``__pycache__`` of the package: numba caches
+beside each source file).
 """
 from __future__ import annotations
 
@@ -36,12 +38,10 @@ import os
 
 import numba as nb
 
-__all__ = ['kernel', 'invalidate_stale_cache']
+__all__ = ['kernel', 'invalidate_stale_cache', 'PACKAGE_DIR']
 
-#: every module of the package that defines or inlines numba kernels
-KERNEL_MODULES = ('compiled.py', 'forces.py', 'geometry.py', 'integrator.py', 'material.py',
-                  'simd.py', 'surface_query.py', 'workshare.py')
-
+#: the package's top directory (cosserat_ros/)
+PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 #: fast-math flags of the kernels: fused multiply-add only
 STRICT = frozenset({'contract'})
@@ -56,19 +56,26 @@ def kernel(**options):
     return nb.njit(cache=True, error_model='numpy', **options)
 
 
-def invalidate_stale_cache(package_dir: str = os.path.dirname(os.path.abspath(__file__))
-                           ) -> bool:
-    """Remove the cached kernels of ``package_dir/__pycache__`` when the kernel sources
-    changed since they were written; returns True if it removed them. A read-only install
-    is left alone (numba then caches per user)."""
+def kernel_sources(package_dir: str = PACKAGE_DIR):
+    """Every Python file of the package, relative to it, sorted (the ROS layer and the
+    tools hold no kernels, but hashing them too costs nothing and cannot miss one)."""
+    out = []
+    for root, dirs, files in os.walk(package_dir):
+        dirs[:] = sorted(d for d in dirs if d != '__pycache__')
+        out += [os.path.relpath(os.path.join(root, f), package_dir)
+                for f in files if f.endswith('.py')]
+    return sorted(out)
+
+
+def invalidate_stale_cache(package_dir: str = PACKAGE_DIR) -> bool:
+    """Remove the cached kernels of every ``__pycache__`` under ``package_dir`` when the
+    package's sources changed since they were written; returns True if it removed them. A
+    read-only install is left alone (numba then caches per user)."""
     digest = hashlib.sha256()
-    for name in KERNEL_MODULES:
-        path = os.path.join(package_dir, name)
-        if os.path.exists(path):
-            with open(path, 'rb') as fh:
-                digest.update(name.encode() + b'\0' + fh.read())
-    cache = os.path.join(package_dir, '__pycache__')
-    stamp = os.path.join(cache, 'kernels.sha256')
+    for name in kernel_sources(package_dir):
+        with open(os.path.join(package_dir, name), 'rb') as fh:
+            digest.update(name.encode() + b'\0' + fh.read())
+    stamp = os.path.join(package_dir, '__pycache__', 'kernels.sha256')
     try:
         with open(stamp) as fh:
             if fh.read().strip() == digest.hexdigest():
@@ -76,10 +83,12 @@ def invalidate_stale_cache(package_dir: str = os.path.dirname(os.path.abspath(__
     except OSError:
         pass
     try:
-        os.makedirs(cache, exist_ok=True)
-        for name in os.listdir(cache):
-            if name.endswith(('.nbi', '.nbc')):
-                os.remove(os.path.join(cache, name))
+        os.makedirs(os.path.dirname(stamp), exist_ok=True)
+        for root, dirs, files in os.walk(package_dir):
+            if os.path.basename(root) == '__pycache__':
+                for name in files:
+                    if name.endswith(('.nbi', '.nbc')):
+                        os.remove(os.path.join(root, name))
         with open(stamp, 'w') as fh:
             fh.write(digest.hexdigest())
     except OSError:

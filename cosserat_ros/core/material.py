@@ -40,7 +40,7 @@ import numpy as np
 
 from .compiled import kernel
 
-__all__ = ['Material', 'material_tensor', 'bilinear', 'contract']
+__all__ = ['Material', 'material_tensor', 'bilinear', 'bilinear_forms', 'contract']
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,21 @@ def material_tensor(c: float, rest_metric: np.ndarray) -> np.ndarray:
     ai = np.linalg.inv(rest_metric)
     return c * (np.einsum('nab,ngd->nabgd', ai, ai) + np.einsum('nag,nbd->nabgd', ai, ai)
                 + np.einsum('nad,nbg->nabgd', ai, ai))
+
+
+def bilinear_forms(ainv: np.ndarray, e: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """B(e_i, k_i) per row (n,) for inverse metrics ``ainv`` and symmetric tensors ``e``,
+    ``k``, each (n,3) as (11, 12, 22): numpy twin of :func:`bilinear`."""
+    i11, i12, i22 = ainv[:, 0], ainv[:, 1], ainv[:, 2]
+    p11 = i11 * e[:, 0] + i12 * e[:, 1]
+    p12 = i11 * e[:, 1] + i12 * e[:, 2]
+    p21 = i12 * e[:, 0] + i22 * e[:, 1]
+    p22 = i12 * e[:, 1] + i22 * e[:, 2]
+    q11 = i11 * k[:, 0] + i12 * k[:, 1]
+    q12 = i11 * k[:, 1] + i12 * k[:, 2]
+    q21 = i12 * k[:, 0] + i22 * k[:, 1]
+    q22 = i12 * k[:, 1] + i22 * k[:, 2]
+    return (p11 + p22) * (q11 + q22) + 2.0 * (p11 * q11 + p12 * q21 + p21 * q12 + p22 * q22)
 
 
 @kernel(inline='always')

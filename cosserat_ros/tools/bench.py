@@ -32,9 +32,9 @@ import numba
 import numpy as np
 
 from . import peer_mujoco as peer
-from .mesh import grid_mesh
-from .messages import colormap, mesh_marker_array
-from .simulator import ClothSimulator, Material
+from ..core.mesh import grid_mesh
+from ..core.simulator import ClothSimulator, Material
+from ..ros.conversions import colormap, mesh_marker_array
 
 SEED_MS = {20: 7.52, 40: 24.97, 80: 70.87}
 SCENE = Material.from_plate(youngs_2d=peer.YOUNGS_2D, bending=peer.BENDING,
@@ -47,10 +47,18 @@ DT_FRACTION = 0.9
 
 
 def _bytes(sim: ClothSimulator) -> int:
-    arrays = list(sim._ops) + list(sim._work) + list(sim._cwork) + [
-        sim._x, sim._v, sim._force, sim._mass, sim._damp, sim._f_applied, sim._st_T,
-        *sim._csr]
-    return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+    """Bytes of every array the simulator holds: model, solver (lanes, plans, work),
+    state, controls, coefficients (shared arrays counted once)."""
+    m, s = sim.model, sim.solver
+    parts = [m.faces, m.vertex_faces, m.vertices, m.jets, (m.st_T,), s.lanes, s.plan,
+             s.force_plan, s.work, sim.state, sim.control, sim.coefficients,
+             (sim._scratch,)]
+    seen = {}
+    for part in parts:
+        for a in part:
+            if isinstance(a, np.ndarray):
+                seen[id(a)] = a.nbytes
+    return sum(seen.values())
 
 
 def scene_simulator(n: int, damping: float = 0.0) -> ClothSimulator:
@@ -307,7 +315,7 @@ def part_node(watch_s: float):
     print('\n## node: the installed cloth_node, 40 x 40, publishing at 30 Hz\n')
     import yaml
     from ament_index_python.packages import get_package_share_directory
-    from .node import pin_set
+    from ..ros.params import pin_set
     # the demo as shipped (the installed config/cloth.yaml), and the issue's scene
     with open(os.path.join(get_package_share_directory('cosserat_ros'), 'config',
                            'cloth.yaml')) as fh:

@@ -2,7 +2,7 @@
 
 Runs the analytic systems of :mod:`cosserat_ros.scenarios` and the geometry checks at 20,
 40 and 80 segments and writes ``docs/validation.md`` with tables and PNG plots, regenerated
-from code. Usage: ``python -m cosserat_ros.validate --out docs`` (several minutes).
+from code. Usage: ``python -m cosserat_ros.tools.validate --out docs`` (several minutes).
 """
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import scenarios as sc  # noqa: E402
+from ..core import scenarios as sc  # noqa: E402
+from ..core.mesh import grid_mesh  # noqa: E402
+from ..core.simulator import ClothSimulator, Material, SimulationDiverged  # noqa: E402
 from .bench import machine  # noqa: E402
-from .mesh import grid_mesh  # noqa: E402
-from .simulator import ClothSimulator, Material, SimulationDiverged  # noqa: E402
 
 NS = (20, 40, 80)
 

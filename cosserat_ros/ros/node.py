@@ -18,6 +18,10 @@ name                     type                                   direction
 
 Every header is stamped with simulation time; the node itself keeps ``use_sim_time``
 false and publishes ``/clock`` so that consumers with ``use_sim_time:=true`` agree.
+
+The node only wires things together: parameters and their validation are in
+:mod:`.params`, command parsing in :mod:`.commands`, the tick's pacing in :mod:`.pacing`,
+the messages in :mod:`.conversions`.
 """
 from __future__ import annotations
 
@@ -34,8 +38,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
@@ -43,24 +46,17 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from . import warmup
-from .forces import DIVERGENCE_METHODS
-from .mesh import grid_mesh, GRID_PATTERNS, load_mesh, MeshError
-from .messages import colormap, mesh_marker_array
-from .simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
-from .surface_query import closest_points
+from ..core import warmup
+from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
+from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
+                              steps_tiled)
+from . import commands
+from .conversions import colormap, mesh_marker_array, percentile
+from .pacing import Pacer
+from .params import (check_choice, check_dt, COLORINGS, ConfigError, MATERIAL_KEYS,
+                     PARAMETERS, pin_set, pinned_indices, RUNTIME_FLOATS, vec3)
 
-COLORINGS = ('energy', 'stretch', 'speed', 'none')
-PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
-            'right_edge', 'boundary')
-MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
-#: [s] what each tick leaves free before the next is due, beyond its publishing: the
-#: executor's latency and the scatter of the publish cost (ClothNode._advance)
-TICK_MARGIN = 0.5e-3
-
-
-class ConfigError(ValueError):
-    """A parameter value the node cannot start with; the message is the reason."""
+__all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 
 
 @dataclass
@@ -68,97 +64,6 @@ class _Force:
     indices: np.ndarray
     forces: np.ndarray
     received: float
-
-
-def _fp(lo: float, hi: float) -> List[FloatingPointRange]:
-    return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-
-
-def _desc(text: str, read_only: bool = False, fp=None, ip=None) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if fp is not None:
-        d.floating_point_range = fp
-    if ip is not None:
-        d.integer_range = ip
-    return d
-
-
-#: name -> (default, descriptor). One source of truth for defaults, ranges and docs.
-PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
-    'mesh.file': ('', _desc('Mesh file (any format trimesh reads); empty for a grid. '
-                            'Relative paths resolve against the working directory.', True)),
-    'mesh.nx': (40, _desc('Grid segments along X', True,
-                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
-    'mesh.ny': (40, _desc('Grid segments along Y', True,
-                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
-    'mesh.width': (1.0, _desc('Grid size along X [m]', True, fp=_fp(1e-6, 1e4))),
-    'mesh.height': (1.0, _desc('Grid size along Y [m]', True, fp=_fp(1e-6, 1e4))),
-    'mesh.pattern': ('regular', _desc('Grid triangulation: ' + ', '.join(GRID_PATTERNS),
-                                      True)),
-    'mesh.seed': (0, _desc('Random seed of the irregular pattern', True)),
-    'material.zeta': (50.0, _desc('Stretching coefficient zeta [N/m] (E h = 16 zeta/3)',
-                                  fp=_fp(0.0, 1e9))),
-    'material.xi': (2e-5, _desc('Bending coefficient xi [N m] (D = 6 xi)', fp=_fp(0.0, 1e6))),
-    'material.phi': (1e-6, _desc('Stretch-bend coupling phi [N]; phi^2 < 4 zeta xi',
-                                 fp=_fp(0.0, 1e6))),
-    'material.density': (0.2, _desc('Mass per unit area mu [kg/m^2]', fp=_fp(0.0, 1e6))),
-    'material.damping': (0.1, _desc('Damping rho [kg/(m^2 s)] (Eq. 1)', fp=_fp(0.0, 1e6))),
-    'dt': (2e-4, _desc('Time step [s]; must not exceed the critical step of the mesh and '
-                       'material', fp=_fp(0.0, 1.0))),
-    'publish_rate': (30.0, _desc('Ticks per second: mesh, energy and /clock are published '
-                                 'every tick', True, fp=_fp(0.1, 1000.0))),
-    'gravity': ([0.0, 0.0, -9.81], _desc('Gravitational acceleration [m/s^2], 3 values')),
-    'pinned.indices': ([-1], _desc('Pinned vertex indices ([-1]: none)', True)),
-    'pinned.sets': (['top_corners'], _desc('Named pinned sets: ' + ', '.join(PIN_SETS),
-                                           True)),
-    'divergence': ('variational', _desc('Internal force discretisation: '
-                                        + ', '.join(DIVERGENCE_METHODS), True)),
-    'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
-    'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
-    'force_timeout': (1.0, _desc('Forces lapse after this many seconds without a new '
-                                 'message (0 = hold) [s]', fp=_fp(0.0, 1e6))),
-    'max_force': (10.0, _desc('Largest accepted force per row [N]', fp=_fp(0.0, 1e9))),
-    'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
-                                      fp=_fp(0.0, 1e9))),
-    'coloring': ('energy', _desc('Mesh colouring: ' + ', '.join(COLORINGS))),
-    'wireframe': (False, _desc('Publish a LINE_LIST wireframe too')),
-    'status_period': (1.0, _desc('Seconds between one-line status logs (0 = off)',
-                                 fp=_fp(0.0, 3600.0))),
-}
-
-
-def pin_set(mesh, name: str) -> np.ndarray:
-    """Vertex indices of a named pinned set, from the rest shape's bounding box."""
-    X = mesh.vertices
-    b = mesh.boundary_vertices
-    lo, hi = X.min(axis=0), X.max(axis=0)
-    tol = 1e-6 * max(float(np.ptp(X, axis=0).max()), 1e-12)
-    bidx = np.flatnonzero(b)
-    if name == 'none':
-        return np.zeros(0, dtype=np.int64)
-    if name == 'boundary':
-        return bidx
-    if len(bidx) == 0:
-        raise ConfigError(f'pinned set {name!r} needs a mesh with a boundary')
-    if name in ('corners', 'top_corners'):
-        targets = [(lo[0], hi[1]), (hi[0], hi[1])]
-        if name == 'corners':
-            targets += [(lo[0], lo[1]), (hi[0], lo[1])]
-        pts = X[bidx, :2]
-        return np.unique([bidx[np.argmin(np.linalg.norm(pts - t, axis=1))] for t in targets])
-    axis, side = {'top_edge': (1, hi), 'bottom_edge': (1, lo), 'left_edge': (0, lo),
-                  'right_edge': (0, hi)}[name]
-    return bidx[np.abs(X[bidx, axis] - side[axis]) <= tol]
-
-
-def percentile(v: np.ndarray, q: float) -> float:
-    """``np.percentile(v, q)`` (linear interpolation between the two nearest ranks) from a
-    partial sort of those two ranks: ~10x cheaper on a mesh's densities, each publish."""
-    k = q / 100.0 * (len(v) - 1)
-    lo = int(k)
-    hi = min(lo + 1, len(v) - 1)
-    p = np.partition(v, (lo, hi))
-    return float(p[lo] + (k - lo) * (p[hi] - p[lo]))
 
 
 class ClothNode(Node):
@@ -173,13 +78,11 @@ class ClothNode(Node):
             material = Material(**{k: p['material.' + k] for k in MATERIAL_KEYS})
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        if p['divergence'] not in DIVERGENCE_METHODS:
-            raise ConfigError(f'divergence must be one of {DIVERGENCE_METHODS}, '
-                              f'got {p["divergence"]!r}')
+        check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
         t0 = time.perf_counter()
         # with a cold compile cache, a second process compiles on the other core what the
-        # start-up below needs after its step's big vertex pass (cosserat_ros.warmup)
-        warmup.start(steps_tiled(self.mesh.n_vertices, material.phi, p['divergence']))
+        # start-up below needs after its step (cosserat_ros.core.warmup)
+        warmup.start(steps_tiled(self.mesh.n_vertices, p['divergence']), material.phi != 0.0)
         self.sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
                                   divergence=p['divergence'], check_dt=False)
         # compile (or load from cache) every kernel of the step and of the energy report
@@ -188,16 +91,17 @@ class ClothNode(Node):
         self.sim.step(1)
         self.sim.energy_and_densities()
         self.sim.reset()
-        self._check_dt(p['dt'], self.sim.critical_dt())
+        check_dt(p['dt'], self.sim.critical_dt())
         self.sim.dt = p['dt']
         self.get_logger().info(
             f'{self.mesh}: kernels ready and critical dt {self.sim.critical_dt():.3g} s '
             f'found in {time.perf_counter() - t0:.2f} s')
-        self.sim.gravity = self._vec3(p['gravity'], 'gravity')
-        self._apply_pins(p)
+        self.sim.gravity = vec3(p['gravity'], 'gravity')
+        pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
+        if len(pins):
+            self.sim.pin(pins)
         self.frame_id = p['frame_id']
-        self._coloring = p['coloring']
-        self._check_choice(self._coloring, COLORINGS, 'coloring')
+        self._coloring = check_choice(p['coloring'], COLORINGS, 'coloring')
         self._wireframe = bool(p['wireframe'])
         self._force_timeout = p['force_timeout']
         self._max_force = p['max_force']
@@ -208,16 +112,12 @@ class ClothNode(Node):
         self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0}
         self.paused = False
         self.diverged: Optional[str] = None
-        self._step_cost = 0.0
-        self._publish_cost = 0.0
+        self.period = 1.0 / p['publish_rate']
+        self.pacer = Pacer(self.period)
         self._rtf = 1.0
-        self._lagging = False
         self._window = [time.monotonic(), 0.0]   # wall start, sim advanced since
-        self._last_tick = None
-        self._owed = 0.0      # sim seconds the ticks so far fell short of wall time
         self._last_status = time.monotonic()
         self._last_diag = 0.0
-        self._energy_scale = 1e-300
 
         reliable = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
@@ -237,7 +137,6 @@ class ClothNode(Node):
         self.create_service(SetBool, '~/pause', self.on_pause)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
-        self.period = 1.0 / p['publish_rate']
         self.timer = self.create_timer(self.period, self.tick)
 
     # ------------------------------------------------------------------ set-up
@@ -250,27 +149,6 @@ class ClothNode(Node):
 
     def _values(self) -> dict:
         return {name: self.get_parameter(name).value for name in PARAMETERS}
-
-    @staticmethod
-    def _check_choice(value, choices, name):
-        if value not in choices:
-            raise ConfigError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
-
-    @staticmethod
-    def _vec3(value, name) -> np.ndarray:
-        arr = np.asarray(list(value), dtype=np.float64)
-        if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-            raise ConfigError(f'{name} must be 3 finite numbers, got {list(value)!r}')
-        return arr
-
-    @staticmethod
-    def _check_dt(dt: float, critical: float):
-        if not (dt > 0 and math.isfinite(dt)):
-            raise ConfigError(f'dt must be positive, got {dt!r}')
-        if dt > critical:
-            raise ConfigError(f'dt = {dt:.3g} s exceeds the critical step {critical:.3g} s '
-                              'of this mesh and material (the membrane wave speed over the '
-                              'shortest edge limits it): lower dt, zeta or the resolution')
 
     @staticmethod
     def _mesh_path(path: str) -> str:
@@ -289,25 +167,13 @@ class ClothNode(Node):
         try:
             if p['mesh.file']:
                 return load_mesh(self._mesh_path(p['mesh.file']))
-            self._check_choice(p['mesh.pattern'], GRID_PATTERNS, 'mesh.pattern')
+            check_choice(p['mesh.pattern'], GRID_PATTERNS, 'mesh.pattern')
             return grid_mesh(p['mesh.nx'], p['mesh.ny'], p['mesh.width'], p['mesh.height'],
                              p['mesh.pattern'], p['mesh.seed'])
         except (MeshError, ValueError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
             raise ConfigError(f'mesh: {exc}') from None
-
-    def _apply_pins(self, p):
-        idx = [int(i) for i in p['pinned.indices'] if i != -1]
-        n = self.mesh.n_vertices
-        bad = [i for i in idx if not 0 <= i < n]
-        if bad:
-            raise ConfigError(f'pinned.indices must lie in [0, {n - 1}] (or be [-1] for '
-                              f'none), got {bad}')
-        sets = [s for s in p['pinned.sets'] if s]
-        for s in sets:
-            self._check_choice(s, PIN_SETS, 'pinned.sets entries')
-            idx.extend(pin_set(self.mesh, s).tolist())
-        if idx:
-            self.sim.pin(np.unique(idx))
 
     # ------------------------------------------------------------------ commands
     def _reject(self, topic: str, reason: str):
@@ -316,76 +182,36 @@ class ClothNode(Node):
                                   f'({self.rejected[topic]} rejected so far)',
                                   throttle_duration_sec=1.0)
 
-    def _rows(self, msg: Float64MultiArray, width: int, topic: str) -> Optional[np.ndarray]:
-        data = np.asarray(msg.data, dtype=np.float64)
-        off = msg.layout.data_offset
-        if off > len(data):
-            self._reject(topic, f'layout.data_offset {off} beyond {len(data)} values')
-            return None
-        data = data[off:]
-        dims = msg.layout.dim
-        if len(dims) >= 2 and (dims[1].size != width or dims[0].size * width != len(data)):
-            self._reject(topic, f'layout {dims[0].size}x{dims[1].size} does not describe '
-                                f'{len(data)} values in rows of {width}')
-            return None
-        if len(data) % width:
-            self._reject(topic, f'{len(data)} values are not rows of {width}')
-            return None
-        if not np.all(np.isfinite(data)):
-            self._reject(topic, 'non-finite value')
-            return None
-        rows = data.reshape(-1, width)
-        mag = np.linalg.norm(rows[:, -3:], axis=1)
-        if len(rows) and mag.max() > self._max_force:
-            self._reject(topic, f'force {mag.max():.4g} N above max_force '
-                                f'{self._max_force:.4g} N')
-            return None
-        return rows
-
     def on_vertex_forces(self, msg: Float64MultiArray):
         """Rows [index, fx, fy, fz] [N]; replaces the previous set (empty: clear)."""
-        rows = self._rows(msg, 4, 'vertex_forces')
-        if rows is None:
+        try:
+            rows = commands.force_rows(msg, 4, self._max_force)
+            idx, f = commands.vertex_forces(rows, self.mesh.n_vertices)
+        except commands.CommandError as exc:
+            self._reject('vertex_forces', str(exc))
             return
-        idx = rows[:, 0]
-        n = self.mesh.n_vertices
-        if len(idx) and (np.any(idx != np.round(idx)) or idx.min() < 0 or idx.max() >= n):
-            self._reject('vertex_forces', f'indices must be integers in [0, {n - 1}]')
-            return
-        self._forces['vertex'] = _Force(idx.astype(np.int64), rows[:, 1:].copy(),
-                                        time.monotonic())
+        self._forces['vertex'] = _Force(idx, f, time.monotonic())
         self._push_forces()
 
     def on_point_forces(self, msg: Float64MultiArray):
         """Rows [px, py, pz, fx, fy, fz] in frame_id: each force goes to the closest point
         of the cloth (shared by its triangle's vertices, barycentrically) and stays with
         that material point until replaced."""
-        rows = self._rows(msg, 6, 'point_forces')
-        if rows is None:
+        try:
+            rows = commands.force_rows(msg, 6, self._max_force)
+            idx, f = commands.point_forces(rows, self.sim.positions, self.mesh.faces)
+        except commands.CommandError as exc:
+            self._reject('point_forces', str(exc))
             return
-        if len(rows):
-            x = self.sim.positions
-            tri, bary = closest_points(x, self.mesh.faces, rows[:, :3])
-            idx = self.mesh.faces[tri].reshape(-1)
-            f = (bary[:, :, None] * rows[:, None, 3:]).reshape(-1, 3)
-        else:
-            idx, f = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
         self._forces['point'] = _Force(idx, f, time.monotonic())
         self._push_forces()
 
     def on_force_field(self, msg: Vector3Stamped):
         """Uniform force per unit mass [m/s^2] in frame_id ('' is taken as frame_id)."""
-        if msg.header.frame_id not in ('', self.frame_id):
-            self._reject('force_field', f'frame {msg.header.frame_id!r} is not '
-                                        f'{self.frame_id!r} (no tf here)')
-            return
-        v = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
-        if not np.all(np.isfinite(v)):
-            self._reject('force_field', 'non-finite value')
-            return
-        if np.linalg.norm(v) > self._max_acc:
-            self._reject('force_field', f'|F| = {np.linalg.norm(v):.4g} m/s^2 above '
-                                        f'max_acceleration {self._max_acc:.4g}')
+        try:
+            v = commands.force_field(msg, self.frame_id, self._max_acc)
+        except commands.CommandError as exc:
+            self._reject('force_field', str(exc))
             return
         self._field = (v, time.monotonic())
         self.sim.force_field = v
@@ -421,7 +247,7 @@ class ClothNode(Node):
         self.diverged = None
         self.paused = False
         self._window = [time.monotonic(), 0.0]
-        self._last_tick = None
+        self.pacer.restart()
         response.success = True
         response.message = 'cloth back to its rest shape at t = 0'
         self.publish_state()
@@ -433,7 +259,7 @@ class ClothNode(Node):
             response.message = f'simulation diverged ({self.diverged}); call ~/reset first'
             return response
         self.paused = bool(request.data)
-        self._last_tick = None
+        self.pacer.restart()
         response.success = True
         response.message = 'paused' if self.paused else 'running'
         return response
@@ -457,13 +283,13 @@ class ClothNode(Node):
                 dt = val
             elif name == 'gravity':
                 try:
-                    self._vec3(val, 'gravity')
-                except (ConfigError, TypeError, ValueError) as exc:
+                    vec3(val, 'gravity')
+                except ConfigError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
             elif name == 'coloring' and val not in COLORINGS:
                 return SetParametersResult(successful=False,
                                            reason=f'coloring must be one of {COLORINGS}')
-            elif name in ('force_timeout', 'max_force', 'max_acceleration', 'status_period'):
+            elif name in RUNTIME_FLOATS:
                 if not isinstance(val, float) or not (val >= 0 and math.isfinite(val)):
                     return SetParametersResult(successful=False,
                                                reason=f'{name} must be a non-negative float')
@@ -472,9 +298,7 @@ class ClothNode(Node):
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         if material != self.sim.material or dt != self.sim.dt:
-            probe = self.sim if material == self.sim.material else ClothSimulator(
-                self.mesh, material, dt=dt, check_dt=False)
-            crit = probe.critical_dt()
+            crit = self.sim.critical_dt(material)
             if dt > crit:
                 return SetParametersResult(
                     successful=False, reason=f'dt = {dt:.3g} s would exceed the critical step '
@@ -507,39 +331,28 @@ class ClothNode(Node):
                 self._status_period = val
         if changed_material:
             self.sim.material = Material(**mat)
-            self._energy_scale = 1e-300
 
     # ------------------------------------------------------------------ the loop
     def tick(self):
-        """Advance as many steps as keep sim time with wall time, then publish: the wall
-        time since the last tick (at most 4 periods) plus what earlier ticks fell short by,
-        in whole steps."""
+        """Advance as many steps as keep sim time with wall time (:mod:`.pacing`), then
+        publish."""
         now = time.monotonic()
         self._expire_forces(now)
         if not self.paused and self.diverged is None:
-            if self._last_tick is None:
-                elapsed, owed = self.period, 0.0
-            else:
-                elapsed, owed = now - self._last_tick, self._owed
-            owed += min(elapsed, 4 * self.period)
-            wanted = max(1, int(round(owed / self.sim.dt)))
-            done = self._advance(wanted)
-            self._lagging = done < wanted
-            # carry what the rounding to whole steps left, so that sim time keeps wall
-            # time over many ticks (a period of 199.6 steps, rounded alone, gains 0.2%);
-            # a tick that could not keep up drops its debt instead of piling it up
-            self._owed = 0.0 if self._lagging else owed - done * self.sim.dt
+            wanted = self.pacer.wanted(now, self.sim.dt)
+            due = self.timer.time_until_next_call()
+            done = self.pacer.advance(self._step, wanted, None if due is None else due * 1e-9)
+            self.pacer.carry(done, wanted, self.sim.dt, now)
             self._window[1] += done * self.sim.dt
-        self._last_tick = now
+        else:
+            self.pacer.last_tick = now
         wall = now - self._window[0]
         if wall >= 1.0:
             self._rtf = self._window[1] / wall if not self.paused else 0.0
             self._window = [now, 0.0]
         t1 = time.perf_counter()
         self.publish_state()
-        cost = time.perf_counter() - t1
-        self._publish_cost = cost if self._publish_cost == 0 else (
-            0.8 * self._publish_cost + 0.2 * cost)
+        self.pacer.note_publish(time.perf_counter() - t1)
         if now - self._last_diag >= 1.0:
             self._last_diag = now
             self.diag_pub.publish(self.diagnostics())
@@ -549,49 +362,19 @@ class ClothNode(Node):
             state = 'DIVERGED' if self.diverged else ('paused' if self.paused else 'running')
             self.get_logger().info(
                 f'{state} t={self.sim.time:.3f} s  RTF {self._rtf:.2f}  step '
-                f'{self._step_cost * 1e3:.3f} ms  E_total {e["total"]:.6g} J  '
+                f'{self.pacer.step_cost * 1e3:.3f} ms  E_total {e["total"]:.6g} J  '
                 f'(kin {e["kinetic"]:.3g}, elastic {e["elastic"]:.3g})')
 
-    def _advance(self, wanted: int) -> int:
-        """Take up to ``wanted`` steps, as many as fit before the next tick is due; return
-        how many were taken.
-
-        The steps end where the timer's next call is due, less the publishing that follows
-        them (its cost smoothed over ticks) and TICK_MARGIN; never less than a third of
-        the period. The timer keeps its own schedule (rcl's next call is a whole number of
-        periods from its start), so a tick that starts late, or one before it that ran
-        over, shortens this tick's stepping instead of shifting the next tick. The first
-        batch takes at most 3/4 of what the smoothed step cost says fits; the rest is
-        sized on that batch's own cost, measured in this tick, so a host that slows
-        down between ticks does not push the tick past its period."""
-        due = self.timer.time_until_next_call()
-        left = self.period if due is None else due * 1e-9
-        end = time.perf_counter() + max(self.period / 3,
-                                        left - self._publish_cost - TICK_MARGIN)
-        done, cost = 0, self._step_cost
-        while done < wanted:
-            if cost <= 0:
-                n = 1                                    # no estimate yet: one step
-            else:
-                fit = (end - time.perf_counter()) / cost
-                n = min(wanted - done, int(0.75 * fit if done == 0 else fit))
-                if n <= 0:
-                    if done:
-                        break
-                    n = 1                                # every tick takes a step
-            t0 = time.perf_counter()
-            try:
-                self.sim.step(n)
-            except SimulationDiverged as exc:
-                self.diverged = str(exc)
-                self.paused = True
-                self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
-                break
-            cost = (time.perf_counter() - t0) / n
-            self._step_cost = cost if self._step_cost == 0 else (
-                0.8 * self._step_cost + 0.2 * cost)
-            done += n
-        return done
+    def _step(self, n: int) -> bool:
+        """n steps; on a divergence, pause and report, and return False."""
+        try:
+            self.sim.step(n)
+        except SimulationDiverged as exc:
+            self.diverged = str(exc)
+            self.paused = True
+            self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
+            return False
+        return True
 
     def stamp_ns(self) -> int:
         return int(round(self.sim.time * 1e9))
@@ -644,8 +427,7 @@ class ClothNode(Node):
         return arr
 
     def energy_message(self, stamp: int) -> DiagnosticArray:
-        e = dict(self._energy)
-        vals = {k: float(v) for k, v in e.items()}
+        vals = {k: float(v) for k, v in self._energy.items()}
         vals['sim_time'] = float(self.sim.time)
         vals['step'] = int(self.sim.step_count)
         if self.diverged:
@@ -661,7 +443,7 @@ class ClothNode(Node):
         rej = sum(self.rejected.values())
         if self.diverged:
             level, msg = DiagnosticStatus.ERROR, 'diverged: ' + self.diverged
-        elif self._lagging or (not self.paused and self._rtf < 0.9):
+        elif self.pacer.lagging or (not self.paused and self._rtf < 0.9):
             level, msg = DiagnosticStatus.WARN, (f'cannot keep real time (RTF '
                                                  f'{self._rtf:.2f})')
         elif self.paused:
@@ -669,8 +451,8 @@ class ClothNode(Node):
         else:
             level, msg = DiagnosticStatus.OK, 'running'
         vals = {'real_time_factor': float(self._rtf),
-                'step_cost_ms': float(self._step_cost * 1e3),
-                'publish_cost_ms': float(self._publish_cost * 1e3),
+                'step_cost_ms': float(self.pacer.step_cost * 1e3),
+                'publish_cost_ms': float(self.pacer.publish_cost * 1e3),
                 'dt': float(self.sim.dt), 'critical_dt': float(crit),
                 'dt_over_critical': float(self.sim.dt / crit),
                 'vertices': self.mesh.n_vertices, 'faces': self.mesh.n_faces,

@@ -20,8 +20,9 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ['CdrWriter', 'mesh_marker_array', 'colormap', 'TRIANGLE_LIST', 'LINE_LIST',
-           'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID', 'PINS_ID']
+__all__ = ['CdrWriter', 'mesh_marker_array', 'colormap', 'percentile', 'TRIANGLE_LIST',
+           'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
+           'PINS_ID']
 
 TRIANGLE_LIST = 11
 LINE_LIST = 5
@@ -166,3 +167,13 @@ def colormap(values: np.ndarray, vmin: float, vmax: float, alpha: float = 1.0) -
         out[:, c] = np.interp(t, _VIRIDIS_T, _VIRIDIS[:, c])
     out[:, 3] = alpha
     return out
+
+
+def percentile(v: np.ndarray, q: float) -> float:
+    """``np.percentile(v, q)`` (linear interpolation between the two nearest ranks) from a
+    partial sort of those two ranks: ~10x cheaper on a mesh's densities, each publish."""
+    k = q / 100.0 * (len(v) - 1)
+    lo = int(k)
+    hi = min(lo + 1, len(v) - 1)
+    p = np.partition(v, (lo, hi))
+    return float(p[lo] + (k - lo) * (p[hi] - p[lo]))

@@ -1,0 +1,426 @@
+"""The cloth simulator: a thin facade over the model, state, controls, terms and solver.
+
+This module imports no ROS package: scripts, tests and benchmarks use it directly, and
+the node (``cosserat_ros.ros.node``) is a thin layer over it.
+
+Example::
+
+    from cosserat_ros.mesh import grid_mesh
+    from cosserat_ros.simulator import ClothSimulator, Material
+    sim = ClothSimulator(grid_mesh(40, 40), Material(zeta=100.0, xi=1e-5, phi=0.0,
+                                                     density=0.2, damping=0.05), dt=2e-4)
+    sim.gravity = (0.0, 0.0, -9.81)
+    sim.pin([0, 40])
+    sim.step(1000)
+    print(sim.energy()['total'])
+
+What it holds: ``sim.model`` (:class:`.model.Model`, frozen rest data), ``sim.state``
+(:class:`.state.State`: x, v and the energy balance), ``sim.control``
+(:class:`.state.Control`: applied forces, gravity, pins), ``sim.coefficients`` (the
+material on the mesh) and ``sim.solver`` (:class:`.solvers.explicit.ExplicitSolver`).
+
+Units are SI throughout: positions [m], velocities [m/s], forces [N], energies [J],
+accelerations [m/s^2], time [s].
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, Optional
+import warnings
+
+import numpy as np
+
+from . import energy as _energy
+from .constants import DIVERGENCE_SPEED_FACTOR
+from .geometry import CURVATURE_ESTIMATORS, Geometry
+from .material import Material, material_tensor
+from .mesh import ClothMesh
+from .model import Model
+from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
+from .solvers.stability import critical_dt as _critical_dt, max_eigenvalue as _max_eigenvalue
+from .state import Control, State
+from .terms import covariant
+from .terms.jet import model_scratch
+
+__all__ = ['ClothSimulator', 'Material', 'SimulationDiverged', 'steps_tiled',
+           'DIVERGENCE_METHODS']
+
+
+class SimulationDiverged(RuntimeError):
+    """A step produced a non-finite value or a physically impossible speed.
+
+    The simulator has been put back to the state it had before the failing ``step`` call.
+    Attributes: ``step`` (the global step index that diverged), ``time`` [s] and ``hint``.
+    """
+
+    def __init__(self, step: int, time: float, hint: str):
+        self.step = step
+        self.time = time
+        self.hint = hint
+        super().__init__(f'simulation diverged at step {step} (t = {time:.6g} s): {hint}')
+
+
+def _as_vec3(value, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64) if not isinstance(value, str) else None
+    if arr is None or arr.shape != (3,):
+        raise ValueError(f'{name} must be 3 numbers, got {value!r}')
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f'{name} must be finite, got {value!r}')
+    return arr
+
+
+class ClothSimulator:
+    """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29).
+
+    Parameters
+    ----------
+    mesh : ClothMesh
+        The rest shape (flat or curved, open or closed).
+    material : Material
+        Constants zeta, xi, phi, density, damping (SI units).
+    dt : float
+        Time step [s]; a warning is issued when it exceeds :meth:`critical_dt`.
+    divergence : {"variational", "covariant"}
+        Discretisation of the internal force N^a|_a: the exact negative gradient of the
+        discrete energy (default; any boundary), or the seed's covariant derivatives
+        (comparison only; needs every boundary vertex pinned).
+    check_dt : bool
+        Compare ``dt`` with :meth:`critical_dt` on construction (costs ~100 force
+        evaluations) and warn when it is too large.
+    simd : bool
+        Run the vertex pass four vertices per SIMD vector (default). False runs it one
+        vertex at a time, the same formulas; kept for tests and comparison.
+    """
+
+    def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
+                 divergence: str = 'variational', check_dt: bool = True, simd: bool = True):
+        if not isinstance(mesh, ClothMesh):
+            raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
+        if not isinstance(material, Material):
+            raise ValueError(f'material must be a Material, got {type(material).__name__}')
+        if divergence not in DIVERGENCE_METHODS:
+            raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
+                             f'got {divergence!r}')
+        self.mesh = mesh
+        self._divergence = divergence
+        self.model = Model.from_mesh(mesh)
+        self.solver = ExplicitSolver(self.model, divergence, simd)
+        n = mesh.n_vertices
+        self.state = State.at_rest(mesh.vertices)
+        self.control = Control.empty(n)
+        self._f_vertex = np.zeros((n, 3))
+        self._force_field = np.zeros(3)
+        self._scratch = model_scratch(self.model)
+        self._time = 0.0
+        self._steps = 0
+        self._critical_dt: Optional[float] = None
+        self.material = material
+        self._dt = self._check_positive(dt, 'dt')
+        if check_dt:
+            self._warn_if_unstable(self._dt)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices."""
+        return self.mesh.n_vertices
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Current positions (n, 3) [m] (a copy)."""
+        return self.state.x.copy()
+
+    def set_positions(self, x) -> None:
+        """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp)."""
+        self.state.x[:] = self._checked_state(x, 'positions')
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Current velocities (n, 3) [m/s] (a copy; at the half step of the leapfrog)."""
+        return self.state.v.copy()
+
+    def set_velocities(self, v) -> None:
+        """Set velocities (n, 3) [m/s]; pinned vertices keep zero velocity."""
+        arr = self._checked_state(v, 'velocities')
+        arr[self.control.pinned] = 0.0
+        self.state.v[:] = arr
+
+    def _checked_state(self, value, name: str) -> np.ndarray:
+        arr = np.array(value, dtype=np.float64)
+        if arr.shape != (self.mesh.n_vertices, 3):
+            raise ValueError(f'{name} must have shape ({self.mesh.n_vertices}, 3), '
+                             f'got {arr.shape}')
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f'{name} must be finite')
+        return arr
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]."""
+        return self._time
+
+    @property
+    def step_count(self) -> int:
+        """Number of steps taken since construction or :meth:`reset`."""
+        return self._steps
+
+    @property
+    def dt(self) -> float:
+        """Time step [s]."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, value: float):
+        self._dt = self._check_positive(value, 'dt')
+
+    @property
+    def divergence(self) -> str:
+        """The discretisation of N^a|_a in use."""
+        return self._divergence
+
+    @property
+    def material(self) -> Material:
+        """Material constants; assigning a new :class:`Material` takes effect at once."""
+        return self._material
+
+    @material.setter
+    def material(self, material: Material):
+        if not isinstance(material, Material):
+            raise ValueError(f'material must be a Material, got {type(material).__name__}')
+        self._material = material
+        self._critical_dt = None
+        self.coefficients = self.model.coefficients(material)
+        self._vmax = DIVERGENCE_SPEED_FACTOR * material.wave_speed + 100.0
+        self._update_applied()
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """Gravitational acceleration g (3,) [m/s^2]; (0, 0, 0) by default."""
+        return self.control.gravity.copy()
+
+    @gravity.setter
+    def gravity(self, g):
+        self.control.gravity[:] = _as_vec3(g, 'gravity')
+
+    @property
+    def force_field(self) -> np.ndarray:
+        """Uniform external force per unit mass F (3,) [m/s^2], e.g. wind."""
+        return self._force_field.copy()
+
+    @force_field.setter
+    def force_field(self, f):
+        self._force_field = _as_vec3(f, 'force_field')
+        self._update_applied()
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """Boolean mask (n,) of pinned vertices (a copy)."""
+        return self.control.pinned.copy()
+
+    def pin(self, indices) -> None:
+        """Pin vertices (indices or a boolean mask): they keep their position."""
+        idx = self._indices(indices)
+        self.control.pinned[idx] = True
+        self.state.v[idx] = 0.0
+
+    def unpin(self, indices) -> None:
+        """Release pinned vertices (indices or a boolean mask)."""
+        self.control.pinned[self._indices(indices)] = False
+
+    def set_vertex_forces(self, indices, forces) -> None:
+        """Replace the external nodal forces [N]: ``forces`` (k, 3) on vertices ``indices``
+        (k,). Repeated indices add up. Previous nodal forces are removed."""
+        idx = self._indices(indices)
+        f = np.asarray(forces, dtype=np.float64)
+        if f.shape != (len(idx), 3):
+            raise ValueError(f'forces must have shape ({len(idx)}, 3) for {len(idx)} '
+                             f'indices, got {f.shape}')
+        if not np.all(np.isfinite(f)):
+            raise ValueError('forces must be finite')
+        fv = np.zeros_like(self._f_vertex)
+        np.add.at(fv, idx, f)
+        self._f_vertex = fv
+        self._update_applied()
+
+    def clear_vertex_forces(self) -> None:
+        """Remove all external nodal forces."""
+        self._f_vertex = np.zeros_like(self._f_vertex)
+        self._update_applied()
+
+    @property
+    def vertex_forces(self) -> np.ndarray:
+        """External nodal forces currently applied (n, 3) [N] (a copy)."""
+        return self._f_vertex.copy()
+
+    def _update_applied(self):
+        self.control.f_applied[:] = (self._f_vertex
+                                     + self.coefficients.mass[:, None] * self._force_field)
+
+    def reset(self) -> None:
+        """Back to the rest shape at rest: positions, velocities, time, step count and the
+        energy-balance integrals. Pins, forces, gravity and material are kept."""
+        self.state.assign(State.at_rest(self.mesh.vertices))
+        self._time = 0.0
+        self._steps = 0
+
+    # ------------------------------------------------------------------ dynamics
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` steps of size :attr:`dt` inside compiled code.
+
+        Raises :class:`SimulationDiverged` (and restores the state from before this call)
+        when a step produces a non-finite value or an impossible speed.
+        """
+        if isinstance(n, bool) or int(n) != n or n < 0:
+            raise ValueError(f'n must be a non-negative integer, got {n!r}')
+        n = int(n)
+        if n == 0:
+            return
+        backup = self.state.copy()
+        done = self.solver.step(n, self.state, self.control, self.coefficients, self._dt,
+                                self._vmax ** 2)
+        if done < n:
+            self.state.assign(backup)
+            crit = self.critical_dt()
+            if self._dt > crit:
+                hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
+                        'reduce dt or soften the material')
+            else:
+                hint = ('a speed exceeded the elastic limit or a value became non-finite; '
+                        'check the applied forces and the material, then reset')
+            raise SimulationDiverged(self._steps + done + 1, self._time + (done + 1) * self._dt,
+                                     hint)
+        self._steps += n
+        self._time += n * self._dt
+
+    def internal_forces(self) -> np.ndarray:
+        """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""
+        out = np.zeros((self.n_vertices, 3))
+        self.solver.internal_forces(self.state.x, self.coefficients, out)
+        return out
+
+    # ------------------------------------------------------------------ energy
+    def energy_and_densities(self):
+        """:meth:`energy` and :meth:`energy_densities` from one evaluation of the fields."""
+        force = self.internal_forces() if self._divergence == 'covariant' else None
+        return _energy.report(self.model, self.coefficients, self.state, self.control,
+                              self._dt, self._scratch, force)
+
+    def energy_densities(self) -> Dict[str, np.ndarray]:
+        """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
+        ``coupling`` and ``total``, each (n,)."""
+        return self.energy_and_densities()[1]
+
+    def energy(self) -> Dict[str, float]:
+        """Energies [J] of the current state and the running balance terms.
+
+        ``kinetic`` uses the velocity synchronised with the positions (the leapfrog
+        half-step correction v + dt/2 a), ``stretching``, ``bending``, ``coupling`` are the
+        discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
+        -sum m g . x, ``total`` = kinetic + elastic + gravity. ``external_work`` (nodal
+        forces and force field) and ``dissipated`` (damping) accumulate since the last
+        reset, so ``total - total(0) ~ external_work - dissipated``.
+        """
+        return self.energy_and_densities()[0]
+
+    # ------------------------------------------------------------------ inspection
+    def geometry(self, curvature: str = 'jet') -> Geometry:
+        """Per-vertex geometry of the current state (see :class:`Geometry`).
+
+        ``curvature`` selects the curvature estimator: ``"jet"`` (cubic least-squares
+        jet, convergent, default) or ``"seed"`` (normal differences along the 1-ring, the
+        seed's Sec. 5.2; does not converge, kept for comparison).
+        """
+        if curvature not in CURVATURE_ESTIMATORS:
+            raise ValueError(f'curvature must be one of {CURVATURE_ESTIMATORS}, '
+                             f'got {curvature!r}')
+        return self.model.geometry(self.state.x, curvature)
+
+    def resultants(self) -> Dict[str, np.ndarray]:
+        """Per-vertex contact quantities from the vertex strains, for inspection:
+        ``M`` = M^ab (n,2,2), ``N`` = N^ab (n,2,2) (Eq. 28), ``N3`` = N^3b = M^ba|_a (n,2),
+        ``force_vectors`` N^b (n,2,3) (Eq. 26), and the material tensors ``Phi``, ``Psi``,
+        ``Theta`` (n,2,2,2,2) of Eq. 19."""
+        cw = covariant.resultants(self.model, self.coefficients, self.state.x)
+        n3 = np.einsum('nbk,nk->nb', cw.nvec, cw.basis[:, 2])
+        A = self.model.rest.metric
+        mat = self._material
+        return {'M': cw.mres, 'N': cw.nres, 'N3': n3, 'force_vectors': cw.nvec,
+                'Phi': material_tensor(mat.zeta, A), 'Psi': material_tensor(mat.xi, A),
+                'Theta': material_tensor(mat.phi, A)}
+
+    # ------------------------------------------------------------------ stability
+    def critical_dt(self, material: Optional[Material] = None) -> float:
+        """Largest stable time step [s] for this mesh and material (cached), or for another
+        ``material`` on the same mesh (no new simulator: the same model and solver with
+        that material's coefficients): 0.8 of the damped symplectic Euler limit for the
+        highest frequency of the system linearised at rest (:mod:`.solvers.stability`)."""
+        if material is not None and material != self._material:
+            if not isinstance(material, Material):
+                raise ValueError(f'material must be a Material, got {type(material).__name__}')
+            coeff = self.model.coefficients(material)
+            return _critical_dt(self._omega2(coeff, self.mesh.vertices), material.density,
+                                material.damping)
+        if self._critical_dt is None:
+            self._critical_dt = _critical_dt(self.max_eigenvalue(), self._material.density,
+                                             self._material.damping)
+        return self._critical_dt
+
+    def max_eigenvalue(self, iterations: int = 60, seed: int = 0,
+                       at: Optional[np.ndarray] = None) -> float:
+        """omega_max^2 [1/s^2] of the free system linearised at rest, or at positions
+        ``at`` (Lanczos, an upper estimate: largest Ritz value plus its residual)."""
+        X = self.mesh.vertices if at is None else np.asarray(at, dtype=np.float64)
+        return self._omega2(self.coefficients, X, iterations, seed)
+
+    def _omega2(self, coeff, X, iterations: int = 60, seed: int = 0) -> float:
+        def force(x, out):
+            self.solver.internal_forces(np.ascontiguousarray(x), coeff, out)
+        return _max_eigenvalue(force, coeff.mass, X, self.mesh.mean_edge_length, iterations,
+                               seed)
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def _check_positive(value, name: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
+                                                             np.integer)):
+            raise ValueError(f'{name} must be a number, got {value!r}')
+        value = float(value)
+        if not math.isfinite(value) or value <= 0:
+            raise ValueError(f'{name} must be positive and finite, got {value!r}')
+        return value
+
+    def _indices(self, indices, name: str = 'indices') -> np.ndarray:
+        arr = np.asarray(indices)
+        n = self.mesh.n_vertices
+        if arr.dtype == bool:
+            if arr.shape != (n,):
+                raise ValueError(f'a boolean {name} mask must have shape ({n},), '
+                                 f'got {arr.shape}')
+            return np.flatnonzero(arr)
+        arr = np.atleast_1d(arr)
+        if arr.ndim != 1:
+            raise ValueError(f'{name} must be a 1-D list of vertex indices, got shape '
+                             f'{arr.shape}')
+        if arr.size == 0:
+            return arr.astype(np.int64)
+        if not np.issubdtype(arr.dtype, np.integer):
+            if (np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr))
+                    and np.all(arr == np.round(arr))):
+                arr = arr.astype(np.int64)
+            else:
+                raise ValueError(f'{name} must be integers, got {indices!r}')
+        if arr.min() < 0 or arr.max() >= n:
+            raise ValueError(f'{name} must lie in [0, {n - 1}], got range '
+                             f'[{arr.min()}, {arr.max()}]')
+        return arr.astype(np.int64)
+
+    def _warn_if_unstable(self, dt: float):
+        crit = self.critical_dt()
+        if dt > crit:
+            warnings.warn(f'dt = {dt:.3g} s exceeds the stable limit {crit:.3g} s of this '
+                          'mesh and material: the explicit update will diverge',
+                          RuntimeWarning, stacklevel=3)
+
+    def __repr__(self) -> str:
+        return (f'ClothSimulator({self.mesh!r}, {self._material}, dt={self._dt:g}, '
+                f'divergence={self._divergence!r})')

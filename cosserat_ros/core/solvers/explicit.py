@@ -1,0 +1,172 @@
+"""The explicit solver: symplectic Euler (Eq. 29) of the discrete Cosserat surface.
+
+``ExplicitSolver.step(n, state, control, coeff, dt, vmax2)`` advances a
+:class:`..state.State` n steps inside compiled code. The internal force is that of the
+three variational terms (``core/terms``), computed by the compiled step of ``fast/``
+(two passes, or tiles for large meshes), or, with ``divergence='covariant'``, the seed's
+covariant route; either way each vertex is updated by ``update.advance_vertex``.
+
+:func:`reference_step` is the same update with the internal force summed from the term
+modules themselves, one parallel pass per term: slow and simple, the truth that the fast
+step is tested against (``test/test_fast.py``).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import numba as nb
+import numpy as np
+
+from ...fast.lanes import build_lanes
+from ...fast.plan import build_plan
+from ...fast.simd import LANES
+from ...fast import step as _fast
+from ..compiled import kernel
+from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
+from ..terms import covariant, TERMS
+from .update import advance_vertex
+
+__all__ = ['ExplicitSolver', 'reference_step', 'DIVERGENCE_METHODS', 'steps_tiled']
+
+#: the discretisations of N^a|_a: the variational terms (default) or the seed's route
+DIVERGENCE_METHODS = ('variational', 'covariant')
+
+
+def steps_tiled(n_vertices: int, divergence: str = 'variational') -> bool:
+    """Whether the step of a mesh of ``n_vertices`` runs tile by tile
+    (``fast.step.run_tiled``): the variational route from ``FUSE_MIN_VERTICES`` on."""
+    return divergence == 'variational' and n_vertices >= FUSE_MIN_VERTICES
+
+
+@kernel(parallel=True)
+def advance_all(x, v, force, control, coeff, dt, vmax2, part, acc):
+    """The update (``update.advance_vertex``) of every vertex with a given internal force
+    (n,3), in the chunks of ``part`` (nch, 3) whose sums are added in chunk order (the
+    same numbers on any thread count); returns the number of vertices that went bad."""
+    n = x.shape[0]
+    nch = part.shape[0]
+    size = (n + nch - 1) // nch
+    for c in nb.prange(nch):
+        w = 0.0
+        d = 0.0
+        b = 0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            dw, dd, db = advance_vertex(i, force[i, 0], force[i, 1], force[i, 2], x, v,
+                                        control, coeff, dt, vmax2)
+            w += dw
+            d += dd
+            b += db
+        part[c, 0] = w
+        part[c, 1] = d
+        part[c, 2] = b
+    bad = 0
+    for c in range(nch):
+        acc[0] += part[c, 0]
+        acc[1] += part[c, 1]
+        bad += int(part[c, 2])
+    return bad
+
+
+@kernel()
+def run_covariant(nsteps, state, control, coeff, jets, vertices, st_T, cw, part, force, dt,
+                  vmax2):
+    """``nsteps`` steps with the seed route's force (``terms.covariant``); returns the
+    steps done (fewer: that step diverged). A kernel of its own, so that a process that
+    never selects the route never compiles it."""
+    x, v, acc = state.x, state.v, state.acc
+    for s in range(nsteps):
+        covariant.covariant_forces(x, jets, vertices, st_T, coeff.zeta, coeff.xi, coeff.phi,
+                                   cw, force)
+        if advance_all(x, v, force, control, coeff, dt, vmax2, part, acc) > 0:
+            return s
+    return nsteps
+
+
+class ExplicitSolver:
+    """Steps a model's state with the explicit update (module docstring).
+
+    Parameters
+    ----------
+    model : :class:`..model.Model`
+    divergence : {"variational", "covariant"}
+    simd : bool
+        The vertex pass four vertices per SIMD vector (default), or one at a time (the
+        same formulas; for tests and comparison).
+    """
+
+    def __init__(self, model, divergence: str = 'variational', simd: bool = True):
+        if divergence not in DIVERGENCE_METHODS:
+            raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
+                             f'got {divergence!r}')
+        self.model = model
+        self.divergence = divergence
+        n, m = model.n_vertices, model.mesh.n_faces
+        self.lanes = build_lanes(model, LANES if simd else 1)
+        nch = -(-n // VERTEX_CHUNK)
+        self.tiled = steps_tiled(n, divergence)
+        parts = max(1, nb.get_num_threads())
+        self.plan = build_plan(model, self.lanes, nch, TILE_VERTICES, parts, self.tiled)
+        # the internal force alone runs the two-pass layout (every gradient in its slot)
+        self.force_plan = (build_plan(model, self.lanes, nch, TILE_VERTICES, parts, False)
+                           if self.tiled else self.plan)
+        # scratch slots per row: the largest lane group's stencil, padded by a cache line
+        # so that rows in use by two threads never share one (false sharing)
+        lanes = LANES if simd else 1
+        smax = -(-lanes * int(np.diff(model.jets.ptr).max()) // 8) * 8 + 8
+        self.work = _fast.Work(np.zeros((m, 3, 3)), np.zeros((3, len(model.jets.idx))),
+                         np.zeros((nch, 5, smax)),
+                         np.zeros(nb.config.NUMBA_NUM_THREADS + 1, dtype=np.int64),
+                         np.zeros((nch, 3)), np.zeros((n, 3)))
+        self.cov_work: Optional[covariant.Work] = (covariant.Work.zeros(n)
+                                                   if divergence == 'covariant' else None)
+
+    def _share_threads(self) -> None:
+        """The work-sharing state's range count (``fast/workshare.py``), set from Python:
+        ``nb.get_num_threads()`` in compiled code makes numba refuse to cache the
+        kernel. A stale count gives the same numbers, only slower."""
+        self.work.share[0] = nb.get_num_threads()
+
+    def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
+        """Advance ``nsteps`` steps in place; returns the steps completed (fewer means the
+        next one diverged and ``state`` is invalid: the caller restores it)."""
+        m = self.model
+        if self.divergence == 'covariant':
+            return run_covariant(nsteps, state, control, coeff, m.jets, m.vertices, m.st_T,
+                                 self.cov_work, self.work.part, self.work.force, dt, vmax2)
+        self._share_threads()
+        coupled = coeff.phi != 0.0
+        if self.tiled:
+            run = _fast.run_tiled_coupled if coupled else _fast.run_tiled
+        else:
+            run = _fast.run_two_pass_coupled if coupled else _fast.run_two_pass
+        return run(nsteps, state, control, coeff, m.faces, m.vertex_faces, m.vertices,
+                   m.jets.tr_ptr, self.lanes, self.plan, self.work, dt, vmax2)
+
+    def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
+        """The internal force at positions x (n,3) into out (n,3) [N]."""
+        m = self.model
+        if self.divergence == 'covariant':
+            covariant.covariant_forces(x, m.jets, m.vertices, m.st_T, coeff.zeta, coeff.xi,
+                                       coeff.phi, self.cov_work, out)
+            return
+        self._share_threads()
+        run = _fast.elastic_forces_coupled if coeff.phi != 0.0 else _fast.elastic_forces
+        run(x, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
+                       self.lanes, self.force_plan, self.work, out)
+
+
+def internal_force_reference(model, coeff, x: np.ndarray) -> np.ndarray:
+    """-sum of the variational terms' gradients (n,3) [N], term by term."""
+    return -sum(term.gradient(model, coeff, x) for term in TERMS.values())
+
+
+def reference_step(model, coeff, state, control, dt: float, nsteps: int = 1,
+                   vmax2: float = np.inf) -> int:
+    """``nsteps`` steps of the update with the internal force summed from the term modules
+    (:data:`..terms.TERMS`); returns the steps completed."""
+    part = np.zeros((-(-model.n_vertices // VERTEX_CHUNK), 3))
+    for s in range(nsteps):
+        f = internal_force_reference(model, coeff, state.x)
+        if advance_all(state.x, state.v, f, control, coeff, dt, vmax2, part, state.acc) > 0:
+            return s
+    return nsteps

@@ -1,0 +1,137 @@
+"""Cold start on two cores: compile the kernels that are off the start-up's critical path
+in a second process, while the first compiles the rest.
+
+With an empty compile cache numba compiles every kernel once, single-threaded. The node's
+start-up (``ClothNode.__init__``) compiles, in this order: the model's set-up kernels, one
+step (``fast/step.py``: its vertex pass and its update pass), the energy report
+(``core/energy.py`` and the terms' kernels) and the force behind the critical dt. Most of
+the step's compile is its vertex pass, which the two-pass step shares with the critical
+dt's force; the tiled step (large meshes) has a vertex pass of its own. :func:`start` has a
+second process compile, meanwhile, what does not depend on the step's vertex pass: the
+energy report, and the two-pass step's update pass or the tiled step's critical-dt force.
+
+numba looks a kernel up in its cache whenever it is about to compile it, for itself or as
+the callee of another kernel, so the node loads what the second process finished in
+time (docs/performance.md has the cold-start figures).
+
+This module imports no ROS package.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from typing import Optional
+
+import numpy as np
+
+__all__ = ['kernels_cached', 'start', 'main']
+
+
+#: a warm-up younger than this holds the cache's lock file; an older lock is stale
+LOCK_SECONDS = 600.0
+
+
+def _index_path() -> Optional[str]:
+    """The energy report's vertex kernel's cache index file; where numba keeps it is not
+    public API, so None if that lookup fails."""
+    from .terms.jet import vertex_pass
+    try:
+        return vertex_pass._cache._cache_file._index_path
+    except AttributeError:
+        return None
+
+
+def kernels_cached() -> bool:
+    """Whether the energy kernel's cache index exists (a warm cache: nothing to do); yes
+    if it cannot be found out."""
+    path = _index_path()
+    return path is None or os.path.exists(path)
+
+
+def _take_lock(path: str) -> bool:
+    """Create the lock file ``path`` unless a warm-up younger than :data:`LOCK_SECONDS`
+    holds it (a node started again while the first one's warm-up still runs must not
+    start a second one)."""
+    for _ in range(2):
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            return True
+        except FileExistsError:
+            try:
+                if time.time() - os.path.getmtime(path) < LOCK_SECONDS:
+                    return False
+                os.remove(path)                     # stale: its warm-up died
+            except OSError:
+                return False
+        except OSError:                             # e.g. a read-only cache
+            return False
+    return False
+
+
+def start(tiled: bool = False, coupled: bool = True) -> Optional[subprocess.Popen]:
+    """Start :func:`main` in a background process if the cache is cold and no other
+    warm-up is running; ``tiled``: the node's mesh steps tiled; ``coupled``: its material
+    has a coupling (phi != 0). Returns the process (or None). It runs the package this process imported (its parent directory as the working
+    directory, which ``-m`` puts first on the path), with the same environment (so the same
+    ``NUMBA_CACHE_DIR``), and its output goes nowhere: a caller that reads this process's
+    pipes must not wait for it."""
+    if kernels_cached():
+        return None
+    lock = _index_path() + '.warmup'
+    try:
+        os.makedirs(os.path.dirname(lock), exist_ok=True)
+    except OSError:
+        return None
+    if not _take_lock(lock):
+        return None
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    try:
+        return subprocess.Popen([sys.executable, '-m', 'cosserat_ros.core.warmup', lock]
+                                + (['tiled'] if tiled else []) + (['coupled'] if coupled
+                                                                    else []),
+                                cwd=root, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        os.remove(lock)
+        return None
+
+
+def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True) -> int:
+    """Compile into the cache, with the argument types of the node's start-up (a small
+    sheet has the same types as any other), what the node needs after its step: the
+    energy report, and for the two-pass step its update pass (which the step's compile
+    would otherwise reach last), for the tiled step the critical dt's force (the two-pass
+    vertex pass, which the tiled step does not share). Then remove the lock file ``lock``
+    that :func:`start` took."""
+    try:
+        _compile(tiled, coupled)
+    finally:
+        if lock is not None and os.path.exists(lock):
+            os.remove(lock)
+    return 0
+
+
+def _compile(tiled: bool, coupled: bool):
+    from ..fast import step as fast_step
+    from .material import Material
+    from .mesh import grid_mesh
+    from .simulator import ClothSimulator
+    sim = ClothSimulator(grid_mesh(4, 4), Material(zeta=50.0, xi=2e-5,
+                                                   phi=1e-6 if coupled else 0.0,
+                                                   density=0.2, damping=0.1),
+                         dt=1e-5, check_dt=False)
+    sim.energy_and_densities()
+    if tiled:
+        sim.internal_forces()
+    else:
+        s, m = sim.solver, sim.model
+        fast_step.integrate(m.jets.tr_ptr, m.vertex_faces.ptr, s.plan, s.work,
+                            sim.state.x.copy(), sim.state.v.copy(), sim.control,
+                            sim.coefficients, sim.dt, 1.0, np.zeros(2))
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None, 'tiled' in sys.argv[2:],
+                  'coupled' in sys.argv[2:]))

@@ -1,0 +1,156 @@
+"""The node's parameters: declarations, defaults, and validation as pure functions.
+
+:data:`PARAMETERS` is the one source of truth for every parameter's name, default, range
+and description (README's table is written from it). The validators here take values and
+return values or raise :class:`ConfigError` with a one-line reason; nothing in this module
+touches a node or a simulator, so they are tested without spinning anything.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Tuple
+
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+from ..core.mesh import GRID_PATTERNS
+from ..core.solvers.explicit import DIVERGENCE_METHODS
+
+__all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'pin_set',
+           'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS']
+
+COLORINGS = ('energy', 'stretch', 'speed', 'none')
+PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
+            'right_edge', 'boundary')
+MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
+#: run-time parameters that must be non-negative floats
+RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period')
+
+
+class ConfigError(ValueError):
+    """A parameter value the node cannot start with; the message is the reason."""
+
+
+def _fp(lo: float, hi: float) -> List[FloatingPointRange]:
+    return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+
+
+def _desc(text: str, read_only: bool = False, fp=None, ip=None) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=text, read_only=read_only)
+    if fp is not None:
+        d.floating_point_range = fp
+    if ip is not None:
+        d.integer_range = ip
+    return d
+
+
+#: name -> (default, descriptor). One source of truth for defaults, ranges and docs.
+PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
+    'mesh.file': ('', _desc('Mesh file (any format trimesh reads); empty for a grid. '
+                            'Relative paths resolve against the working directory.', True)),
+    'mesh.nx': (40, _desc('Grid segments along X', True,
+                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
+    'mesh.ny': (40, _desc('Grid segments along Y', True,
+                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
+    'mesh.width': (1.0, _desc('Grid size along X [m]', True, fp=_fp(1e-6, 1e4))),
+    'mesh.height': (1.0, _desc('Grid size along Y [m]', True, fp=_fp(1e-6, 1e4))),
+    'mesh.pattern': ('regular', _desc('Grid triangulation: ' + ', '.join(GRID_PATTERNS),
+                                      True)),
+    'mesh.seed': (0, _desc('Random seed of the irregular pattern', True)),
+    'material.zeta': (50.0, _desc('Stretching coefficient zeta [N/m] (E h = 16 zeta/3)',
+                                  fp=_fp(0.0, 1e9))),
+    'material.xi': (2e-5, _desc('Bending coefficient xi [N m] (D = 6 xi)', fp=_fp(0.0, 1e6))),
+    'material.phi': (1e-6, _desc('Stretch-bend coupling phi [N]; phi^2 < 4 zeta xi',
+                                 fp=_fp(0.0, 1e6))),
+    'material.density': (0.2, _desc('Mass per unit area mu [kg/m^2]', fp=_fp(0.0, 1e6))),
+    'material.damping': (0.1, _desc('Damping rho [kg/(m^2 s)] (Eq. 1)', fp=_fp(0.0, 1e6))),
+    'dt': (2e-4, _desc('Time step [s]; must not exceed the critical step of the mesh and '
+                       'material', fp=_fp(0.0, 1.0))),
+    'publish_rate': (30.0, _desc('Ticks per second: mesh, energy and /clock are published '
+                                 'every tick', True, fp=_fp(0.1, 1000.0))),
+    'gravity': ([0.0, 0.0, -9.81], _desc('Gravitational acceleration [m/s^2], 3 values')),
+    'pinned.indices': ([-1], _desc('Pinned vertex indices ([-1]: none)', True)),
+    'pinned.sets': (['top_corners'], _desc('Named pinned sets: ' + ', '.join(PIN_SETS),
+                                           True)),
+    'divergence': ('variational', _desc('Internal force discretisation: '
+                                        + ', '.join(DIVERGENCE_METHODS), True)),
+    'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
+    'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
+    'force_timeout': (1.0, _desc('Forces lapse after this many seconds without a new '
+                                 'message (0 = hold) [s]', fp=_fp(0.0, 1e6))),
+    'max_force': (10.0, _desc('Largest accepted force per row [N]', fp=_fp(0.0, 1e9))),
+    'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
+                                      fp=_fp(0.0, 1e9))),
+    'coloring': ('energy', _desc('Mesh colouring: ' + ', '.join(COLORINGS))),
+    'wireframe': (False, _desc('Publish a LINE_LIST wireframe too')),
+    'status_period': (1.0, _desc('Seconds between one-line status logs (0 = off)',
+                                 fp=_fp(0.0, 3600.0))),
+}
+
+
+def check_choice(value, choices, name: str):
+    """``value`` if it is one of ``choices``, else ConfigError."""
+    if value not in choices:
+        raise ConfigError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
+    return value
+
+
+def vec3(value, name: str) -> np.ndarray:
+    """Three finite numbers as a (3,) array, else ConfigError."""
+    try:
+        arr = np.asarray(list(value), dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f'{name} must be 3 finite numbers, got {value!r}') from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f'{name} must be 3 finite numbers, got {list(value)!r}')
+    return arr
+
+
+def check_dt(dt: float, critical: float) -> float:
+    """``dt`` if it is positive and within the critical step, else ConfigError."""
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ConfigError(f'dt must be positive, got {dt!r}')
+    if dt > critical:
+        raise ConfigError(f'dt = {dt:.3g} s exceeds the critical step {critical:.3g} s '
+                          'of this mesh and material (the membrane wave speed over the '
+                          'shortest edge limits it): lower dt, zeta or the resolution')
+    return dt
+
+
+def pin_set(mesh, name: str) -> np.ndarray:
+    """Vertex indices of a named pinned set, from the rest shape's bounding box."""
+    X = mesh.vertices
+    b = mesh.boundary_vertices
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    tol = 1e-6 * max(float(np.ptp(X, axis=0).max()), 1e-12)
+    bidx = np.flatnonzero(b)
+    if name == 'none':
+        return np.zeros(0, dtype=np.int64)
+    if name == 'boundary':
+        return bidx
+    if len(bidx) == 0:
+        raise ConfigError(f'pinned set {name!r} needs a mesh with a boundary')
+    if name in ('corners', 'top_corners'):
+        targets = [(lo[0], hi[1]), (hi[0], hi[1])]
+        if name == 'corners':
+            targets += [(lo[0], lo[1]), (hi[0], lo[1])]
+        pts = X[bidx, :2]
+        return np.unique([bidx[np.argmin(np.linalg.norm(pts - t, axis=1))] for t in targets])
+    axis, side = {'top_edge': (1, hi), 'bottom_edge': (1, lo), 'left_edge': (0, lo),
+                  'right_edge': (0, hi)}[name]
+    return bidx[np.abs(X[bidx, axis] - side[axis]) <= tol]
+
+
+def pinned_indices(mesh, indices, sets) -> np.ndarray:
+    """The pinned vertices of ``pinned.indices`` (``[-1]``: none) and ``pinned.sets``."""
+    idx = [int(i) for i in indices if i != -1]
+    n = mesh.n_vertices
+    bad = [i for i in idx if not 0 <= i < n]
+    if bad:
+        raise ConfigError(f'pinned.indices must lie in [0, {n - 1}] (or be [-1] for '
+                          f'none), got {bad}')
+    for s in (s for s in sets if s):
+        check_choice(s, PIN_SETS, 'pinned.sets entries')
+        idx.extend(pin_set(mesh, s).tolist())
+    return np.unique(np.array(idx, dtype=np.int64))
+

@@ -1,0 +1,164 @@
+"""Each energy term of ``core/terms`` alone: its gradient against central differences of its
+own energy, its Hessian blocks against central differences of its own gradient, rigid
+motions, and the blocks' positive semi-definiteness."""
+import numpy as np
+import pytest
+import trimesh
+
+from cosserat_ros.core.model import Model
+from cosserat_ros.core.terms import bending, coupling, membrane, TERMS
+from cosserat_ros.mesh import ClothMesh, grid_mesh
+from cosserat_ros.simulator import Material
+
+MAT = Material(zeta=20.0, xi=1e-3, phi=2e-3, density=0.2)
+
+
+def _model(name):
+    if name == 'icosphere':
+        m = trimesh.creation.icosphere(subdivisions=1, radius=0.5)
+        return Model.from_mesh(ClothMesh(m.vertices, m.faces))
+    return Model.from_mesh(grid_mesh(6, 5, pattern=name, seed=1))
+
+
+def _deformed(model, amp, seed=0):
+    """A smooth bend plus a little noise: every term's energy and gradient non-zero."""
+    X = model.mesh.vertices
+    rng = np.random.default_rng(seed)
+    x = X + amp * rng.standard_normal(X.shape)
+    x[:, 2] += 0.3 * amp * np.sin(3.0 * X[:, 0]) * np.cos(2.0 * X[:, 1]) / 0.02
+    return x
+
+
+def _rotation(seed=3):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+@pytest.mark.parametrize('term', sorted(TERMS))
+@pytest.mark.parametrize('name', ['regular', 'irregular', 'icosphere'])
+def test_gradient_is_the_central_difference_of_the_energy(term, name):
+    t, model = TERMS[term], _model(name)
+    coeff = model.coefficients(MAT)
+    x = _deformed(model, 0.01)
+    g = t.gradient(model, coeff, x)
+    assert np.abs(g).max() > 0
+    h = 1e-6
+    fd = np.zeros_like(x)
+    for i in range(x.shape[0]):
+        for k in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += h
+            xm[i, k] -= h
+            fd[i, k] = (t.energy(model, coeff, xp) - t.energy(model, coeff, xm)) / (2 * h)
+    assert np.abs(g - fd).max() <= 1e-6 * np.abs(g).max()
+
+
+def _fd_blocks(t, model, coeff, x, h=1e-6):
+    """Diagonal blocks (n,3,3) of the central difference of the term's gradient."""
+    n = len(x)
+    out = np.zeros((n, 3, 3))
+    for k in range(3):
+        for i in range(n):          # one vertex at a time: its own block only
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += h
+            xm[i, k] -= h
+            d = (t.gradient(model, coeff, xp)[i] - t.gradient(model, coeff, xm)[i]) / (2 * h)
+            out[i, :, k] = d
+    return out
+
+
+def test_membrane_blocks_are_exact_and_psd_only_clamps_compression():
+    model = _model('irregular')
+    coeff = model.coefficients(MAT)
+    stretched = model.mesh.vertices * np.array([1.05, 1.03, 1.0])
+    stretched[:, 2] += 0.02 * np.sin(4.0 * stretched[:, 0])
+    for x, psd in ((stretched, True), (stretched, False), (_deformed(model, 0.01), False)):
+        got = membrane.hessian_blocks(model, coeff, x, psd=psd)
+        want = _fd_blocks(membrane, model, coeff, x)
+        assert np.abs(got - want).max() <= 1e-5 * np.abs(want).max()
+    compressed = model.mesh.vertices * np.array([0.95, 0.97, 1.0])
+    exact = membrane.hessian_blocks(model, coeff, compressed, psd=False)
+    clamped = membrane.hessian_blocks(model, coeff, compressed, psd=True)
+    assert np.linalg.eigvalsh(exact).min() < 0 <= np.linalg.eigvalsh(clamped).min()
+
+
+@pytest.mark.parametrize('term', ['bending', 'coupling'])
+@pytest.mark.parametrize('name', ['regular', 'irregular'])
+def test_gauss_newton_blocks_are_exact_at_a_flat_rest_state(term, name):
+    # at rest the curvature change, the strain and the jet residuals vanish, so the terms
+    # that rotate the normal or carry the strain's second derivative drop out: the
+    # Gauss-Newton block is the Hessian's own diagonal block there
+    t, model = TERMS[term], _model(name)
+    coeff = model.coefficients(MAT)
+    x = model.mesh.vertices.copy()
+    kw = {'psd': False} if term == 'coupling' else {}
+    got = t.hessian_blocks(model, coeff, x, **kw)
+    want = _fd_blocks(t, model, coeff, x, h=1e-7)
+    assert np.abs(want).max() > 0
+    assert np.abs(got - want).max() <= 1e-5 * np.abs(want).max()
+
+
+@pytest.mark.parametrize('name', ['regular', 'icosphere'])
+def test_bending_blocks_approach_the_hessian_as_the_deformation_vanishes(name):
+    # away from rest the Gauss-Newton block drops terms of the order of the deformation:
+    # the gap to the finite-difference block falls about linearly with its amplitude
+    model = _model(name)
+    coeff = model.coefficients(MAT)
+    gaps = []
+    amps = (4e-3, 2e-3, 1e-3)
+    for amp in amps:
+        x = model.mesh.vertices + amp * np.random.default_rng(2).standard_normal((
+            model.n_vertices, 3))
+        got = bending.hessian_blocks(model, coeff, x)
+        want = _fd_blocks(bending, model, coeff, x)
+        gaps.append(np.abs(got - want).max() / np.abs(want).max())
+    order = np.polyfit(np.log(amps), np.log(gaps), 1)[0]
+    assert gaps[-1] < 0.1 and order > 0.7
+
+
+@pytest.mark.parametrize('term', sorted(TERMS))
+def test_blocks_are_positive_semidefinite_in_any_state(term):
+    t, model = TERMS[term], _model('irregular')
+    coeff = model.coefficients(MAT)
+    for seed in range(3):
+        x = _deformed(model, 0.03, seed)
+        blocks = t.hessian_blocks(model, coeff, x)
+        assert np.allclose(blocks, np.transpose(blocks, (0, 2, 1)), rtol=1e-12,
+                           atol=1e-12 * np.abs(blocks).max())
+        assert np.linalg.eigvalsh(blocks).min() >= -1e-12 * np.abs(blocks).max()
+
+
+@pytest.mark.parametrize('term', sorted(TERMS))
+@pytest.mark.parametrize('name', ['irregular', 'icosphere'])
+def test_rigid_motions_change_nothing(term, name):
+    t, model = TERMS[term], _model(name)
+    coeff = model.coefficients(MAT)
+    X = model.mesh.vertices
+    R = _rotation()
+    moved = X @ R.T + np.array([0.3, -1.2, 2.0])
+    for x in (X, moved):
+        assert abs(t.energy(model, coeff, x)) < 1e-20
+        assert np.abs(t.gradient(model, coeff, x)).max() < 1e-12
+    x = _deformed(model, 0.01)
+    e, g = t.energy(model, coeff, x), t.gradient(model, coeff, x)
+    x2 = x @ R.T + np.array([0.3, -1.2, 2.0])
+    assert t.energy(model, coeff, x2) == pytest.approx(e, rel=1e-10)
+    assert np.abs(t.gradient(model, coeff, x2) - g @ R.T).max() <= 1e-9 * np.abs(g).max()
+    blocks = t.hessian_blocks(model, coeff, x)
+    rotated = np.einsum('ab,nbc,dc->nad', R, blocks, R)
+    assert np.abs(t.hessian_blocks(model, coeff, x2) - rotated).max() <= (
+        1e-9 * np.abs(blocks).max())
+
+
+def test_each_term_scales_with_its_own_constant_only():
+    model = _model('irregular')
+    x = _deformed(model, 0.01)
+    base = {k: t.energy(model, model.coefficients(MAT), x) for k, t in TERMS.items()}
+    assert all(v > 0 for k, v in base.items() if k != 'coupling') and base['coupling'] != 0
+    for const, term in (('zeta', 'membrane'), ('xi', 'bending'), ('phi', 'coupling')):
+        kw = {k: getattr(MAT, k) for k in ('zeta', 'xi', 'phi', 'density', 'damping')}
+        kw[const] *= 0.5
+        coeff = model.coefficients(Material(**kw))
+        for k, t in TERMS.items():
+            want = base[k] * (0.5 if k == term else 1.0)
+            assert t.energy(model, coeff, x) == pytest.approx(want, rel=1e-12), (const, k)
