@@ -1,15 +1,17 @@
 """The energy report: every term's energy and density, the kinetic and gravity energy.
 
-One evaluation of the elastic fields at the current positions (the terms' own kernels:
-face strains, strain averages, curvature changes, hourglass residuals) gives
+One evaluation of the elastic fields at the current positions (the terms' own kernels,
+energies only: face strains, strain averages, curvature changes, hourglass residuals)
+gives
 
 * per vertex [J/m^2] (the seed's Fig. 4): ``stretching`` (dual-area average of the
   incident triangles' ``W_m``), ``bending`` (``xi B(kap, kap)`` and the hourglass energy
   over ``A_i``), ``coupling`` (``phi B(epsbar, kap)``) and their ``total``;
 * in total [J]: those three summed with the dual areas, ``kinetic`` (the leapfrog velocity
-  carried to the positions' time, ``1/2 sum m |v + dt/2 a|^2``, which needs the internal
-  force: its gradient comes from the same fields), ``gravity`` (``-sum m g . x``), and the
-  running balance of :class:`.state.State` (``external_work``, ``dissipated``).
+  carried to the positions' time, ``1/2 sum m |v + dt/2 a|^2``, with the internal force
+  the caller computed at those positions: the solver's own), ``gravity``
+  (``-sum m g . x``), and the running balance of :class:`.state.State`
+  (``external_work``, ``dissipated``).
 
 ``total = kinetic + elastic + gravity``; an undamped, unforced run keeps it to O(dt^2).
 """
@@ -98,8 +100,8 @@ def totals(dens, dual_area, force, f_applied, mass, damp, v, x, pinned, gravity,
 
 
 def elastic_fields(model, coeff, x: np.ndarray, scratch: np.ndarray):
-    """The fields of the three elastic terms at x and their internal force:
-    (face energies (m,), kap (n,3), epsbar (n,3), estab (n,), force (n,3))."""
+    """The fields of the three elastic terms at x: (face energies (m,), kap (n,3),
+    epsbar (n,3), estab (n,))."""
     f, vf, j = model.faces, model.vertex_faces, model.jets
     n, m = len(x), len(f.corners)
     face_energy = np.empty(m)
@@ -108,36 +110,27 @@ def elastic_fields(model, coeff, x: np.ndarray, scratch: np.ndarray):
     eb = np.zeros((n, 3))
     if coeff.phi != 0.0:
         coupling.strain_average(x, f.corners, f.dinv, vf.ptr, vf.face, vf.K, eb)
-    contrib = np.empty((3, len(j.idx)))
     kap = np.empty((n, 3))
     estab = np.empty(n)
-    jet.vertex_pass(x, j, model.vertices, coeff.stab, coeff.xi, coeff.phi, eb, scratch,
-                    contrib, kap, estab)
-    grad = np.zeros((n, 3))
-    jet.gather(j.tr_ptr, j.tr_slot, contrib, grad)
-    membrane.add_gradient(x, f.corners, f.dinv, f.area, vf.ptr, vf.face, vf.corner,
-                          coeff.zeta, grad)
-    if coeff.phi != 0.0:
-        coupling.add_face_gradient(x, f.corners, f.dinv, f.area, f.K, vf.ptr, vf.face,
-                                   vf.corner, model.vertices.ainv, kap, coeff.phi, grad)
-    return face_energy, kap, eb, estab, -grad
+    jet.vertex_energies(x, j, model.vertices, coeff.stab, coeff.xi, coeff.phi, eb, scratch,
+                        kap, estab)
+    return face_energy, kap, eb, estab
 
 
 def report(model, coeff, state, control, dt: float, scratch: np.ndarray,
-           force: np.ndarray = None) -> Tuple[Dict[str, float], Dict[str, np.ndarray]]:
-    """(energies [J], densities [J/m^2]) of ``state`` (module docstring). ``force``: the
-    internal force to use for the kinetic energy instead of the elastic terms' (the seed
-    route's)."""
+           force: np.ndarray) -> Tuple[Dict[str, float], Dict[str, np.ndarray]]:
+    """(energies [J], densities [J/m^2]) of ``state`` (module docstring), with the internal
+    force ``force`` (n,3) [N] at its positions."""
     x = state.x
-    face_energy, kap, eb, estab, f_el = elastic_fields(model, coeff, x, scratch)
+    face_energy, kap, eb, estab = elastic_fields(model, coeff, x, scratch)
     v = model.vertices
     vf = model.vertex_faces
     out = np.empty((len(x), 4))
     densities(face_energy, kap, eb, estab, vf.ptr, vf.face, v.dual_area, v.ainv, coeff.xi,
               coeff.phi, out)
     sums = np.empty(5)
-    totals(out, v.dual_area, f_el if force is None else force, control.f_applied, coeff.mass,
-           coeff.damp, state.v, x, control.pinned, control.gravity, dt, sums)
+    totals(out, v.dual_area, force, control.f_applied, coeff.mass, coeff.damp, state.v, x,
+           control.pinned, control.gravity, dt, sums)
     stretching, bending, coupling_, kinetic, gravity = (float(e) for e in sums)
     elastic = stretching + bending + coupling_
     energy = {'kinetic': kinetic, 'stretching': stretching, 'bending': bending,

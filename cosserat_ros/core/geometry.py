@@ -80,6 +80,12 @@ class JetOperator:
     entries ``k`` (of any vertex) whose fit uses ``x[j]``: the adjoint (a discrete
     divergence) is a gather.
 
+    Entry order: the centre, then the 1-ring in fan order (:func:`fan_order`), then the
+    rest of the stencil ascending; ``vf_order`` lists each vertex's faces in the same fan
+    order, face f having the 1-ring entries f and f + 1 as its other corners. Two vertices
+    with the same fan (valence, open or closed) then have each face's corners at the same
+    entries, which the step's coupling uses (``fast/lanes.py``).
+
     Stencil templates: vertices whose stencils have the same shape (chart coordinates equal
     to ``JET_TEMPLATE_TOL`` of the stencil radius, in the same order) share the weights and
     chart coordinates of the first such vertex, ``template[i]``. On a structured sheet that
@@ -99,6 +105,7 @@ class JetOperator:
     tr_slot: np.ndarray   # (K,) int64 index k of the entry in st_*
     rings: np.ndarray     # (n,) int64 ring depth used per vertex
     template: np.ndarray  # (n,) int64 vertex whose weights this vertex shares (itself if none)
+    vf_order: np.ndarray  # (V,) int64 the mesh's vertex-face pairs in fan order (fan_order)
 
 
 def rest_frames(mesh: ClothMesh) -> np.ndarray:
@@ -112,6 +119,53 @@ def rest_frames(mesh: ClothMesh) -> np.ndarray:
     e1 /= np.linalg.norm(e1, axis=1)[:, None]
     e2 = np.cross(nrm, e1)
     return np.stack([e1, e2, nrm], axis=1)
+
+
+#: the direction [rad] from which a closed fan's first neighbour is counted: off every
+#: direction of a regular grid, so that round-off cannot change which one comes first
+FAN_START = 0.123
+
+
+def fan_order(mesh: ClothMesh, frames: np.ndarray):
+    """Every vertex's 1-ring and faces in fan order: counter-clockwise (the faces' own
+    orientation), face f with corners (i, n_f, n_{f+1}); an open fan (a boundary vertex)
+    from its boundary edge, a closed one from the neighbour first counter-clockwise from
+    :data:`FAN_START` in the vertex's rest chart. A vertex whose faces form no single fan
+    (two fans meeting at a point) keeps the sorted 1-ring and the mesh's face order.
+
+    Returns (ring (list of n arrays), vf_order (V,) int64: a permutation of the mesh's
+    vertex-face pairs, each vertex's range in fan order)."""
+    X, f = mesh.vertices, mesh.faces
+    ring = []
+    vf_order = np.arange(len(mesh.vf_face), dtype=np.int64)
+    for i in range(mesh.n_vertices):
+        q0, q1 = mesh.vf_ptr[i], mesh.vf_ptr[i + 1]
+        faces, corners = mesh.vf_face[q0:q1], mesh.vf_corner[q0:q1]
+        nxt = {int(f[t, (c + 1) % 3]): (int(f[t, (c + 2) % 3]), q)
+               for t, c, q in zip(faces, corners, range(q0, q1))}
+        nbrs = mesh.ring1[mesh.ring1_ptr[i]:mesh.ring1_ptr[i + 1]]
+        heads = set(nxt) - {k for k, _ in nxt.values()}
+        if len(nxt) != q1 - q0 or len(heads) > 1:
+            ring.append(nbrs.copy())
+            continue
+        if heads:
+            start = heads.pop()
+        else:
+            d = X[list(nxt)] - X[i]
+            ang = np.arctan2(d @ frames[i, 1], d @ frames[i, 0])
+            start = list(nxt)[int(np.argmin((ang - FAN_START) % (2 * np.pi)))]
+        order, qs, j = [start], [], start
+        while j in nxt and len(qs) < q1 - q0:
+            j, q = nxt[j]
+            qs.append(q)
+            if j != start:
+                order.append(j)
+        if len(qs) != q1 - q0 or len(order) != len(nbrs):
+            ring.append(nbrs.copy())
+            continue
+        ring.append(np.array(order, dtype=np.int64))
+        vf_order[q0:q1] = qs
+    return ring, vf_order
 
 
 def design_matrix(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -188,6 +242,15 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
             warnings.warn(f'vertex {i}: even its {JET_MAX_RINGS}-ring cannot determine a '
                           'quadratic (a strip one triangle wide?); its curvature across the '
                           'degenerate direction is taken as zero', stacklevel=3)
+    # the 1-ring first, in fan order, then the rest ascending (the weights of a
+    # least-squares fit follow their points)
+    ring, vf_order = fan_order(mesh, frames)
+    for i, (nbr, w, c) in enumerate(stencils):
+        first = ring[i]
+        rest = np.setdiff1d(nbr, first, assume_unique=True)
+        where = {int(v): k for k, v in enumerate(nbr)}
+        perm = np.array([where[int(v)] for v in np.concatenate([first, rest])], dtype=np.int64)
+        stencils[i] = (nbr[perm], w[perm], c[perm])
     template = _stencil_templates([s[2] for s in stencils], radius)
     stencils = [(nbr, stencils[t][1], stencils[t][2])
                 for (nbr, _, _), t in zip(stencils, template)]
@@ -208,7 +271,7 @@ def build_jet_operator(mesh: ClothMesh) -> JetOperator:
     tr_ptr, _, order = csr_from_pairs(st_idx, src, n)
     return JetOperator(frames=frames, st_ptr=st_ptr, st_idx=st_idx, st_w=st_w, st_x=st_x,
                        radius=radius, tr_ptr=tr_ptr, tr_slot=order.astype(np.int64),
-                       rings=rings, template=template)
+                       rings=rings, template=template, vf_order=vf_order)
 
 
 def _stencil_templates(charts, radius) -> np.ndarray:

@@ -136,19 +136,20 @@ class Model:
         vertices = Vertices(np.ascontiguousarray(mesh.dual_areas),
                             _sym3(np.linalg.inv(rest.metric)), _sym3(rest.metric),
                             _sym3(rest.curvature))
-        # the coupling's corner maps in vertex-face order, weighted by area_t / (3 A_i):
+        # each vertex's faces in fan order (geometry.fan_order, as its stencil's 1-ring);
+        # the coupling's corner maps weighted by area_t / (3 A_i):
         # epsbar_i = sum_q vf_K[q]^T eps_t vf_K[q] (coupling.py)
+        vf_face = np.ascontiguousarray(mesh.vf_face[jet.vf_order])
+        vf_corner = np.ascontiguousarray(mesh.vf_corner[jet.vf_order])
         owner_vf = np.repeat(np.arange(n), np.diff(mesh.vf_ptr))
-        vf_w = np.sqrt(mesh.face_areas[mesh.vf_face] / (3.0 * mesh.dual_areas[owner_vf]))
-        vf_K = np.ascontiguousarray(
-            (K[mesh.vf_face, mesh.vf_corner] * vf_w[:, None, None]).reshape(-1, 4))
+        vf_w = np.sqrt(mesh.face_areas[vf_face] / (3.0 * mesh.dual_areas[owner_vf]))
+        vf_K = np.ascontiguousarray((K[vf_face, vf_corner] * vf_w[:, None, None]).reshape(-1, 4))
         if max(len(jet.st_idx), 3 * m) > np.iinfo(np.uint32).max:
             raise ValueError(f'mesh too large: {m} faces and {len(jet.st_idx)} stencil '
                              'entries, the step indexes them with 32 bits')
-        vf_row = (3 * mesh.vf_face + mesh.vf_corner).astype(np.uint32)
-        vf_entry = _corner_entries(jet, mesh.faces[mesh.vf_face], owner_vf)
-        vertex_faces = VertexFaces(mesh.vf_ptr, mesh.vf_face, mesh.vf_corner, vf_row, vf_K,
-                                   vf_entry)
+        vf_row = (3 * vf_face + vf_corner).astype(np.uint32)
+        vf_entry = _corner_entries(jet, mesh.faces[vf_face], owner_vf)
+        vertex_faces = VertexFaces(mesh.vf_ptr, vf_face, vf_corner, vf_row, vf_K, vf_entry)
         st_uv = np.ascontiguousarray(jet.st_x.T)
         sigma = np.zeros(len(jet.st_idx))
         normal_residuals(mesh.vertices, jet.st_ptr, jet.st_idx, jet.st_w, st_uv, sigma)

@@ -300,10 +300,10 @@ class ClothSimulator:
 
     # ------------------------------------------------------------------ energy
     def energy_and_densities(self):
-        """:meth:`energy` and :meth:`energy_densities` from one evaluation of the fields."""
-        force = self.internal_forces() if self._divergence == 'covariant' else None
+        """:meth:`energy` and :meth:`energy_densities` from one evaluation of the fields
+        and of the internal force."""
         return _energy.report(self.model, self.coefficients, self.state, self.control,
-                              self._dt, self._scratch, force)
+                              self._dt, self._scratch, self.internal_forces())
 
     def energy_densities(self) -> Dict[str, np.ndarray]:
         """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,

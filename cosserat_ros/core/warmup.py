@@ -3,12 +3,12 @@ in a second process, while the first compiles the rest.
 
 With an empty compile cache numba compiles every kernel once, single-threaded. The node's
 start-up (``ClothNode.__init__``) compiles, in this order: the model's set-up kernels, one
-step (``fast/step.py``: its vertex pass and its update pass), the energy report
-(``core/energy.py`` and the terms' kernels) and the force behind the critical dt. Most of
-the step's compile is its vertex pass, which the two-pass step shares with the critical
-dt's force; the tiled step (large meshes) has a vertex pass of its own. :func:`start` has a
-second process compile, meanwhile, what does not depend on the step's vertex pass: the
-energy report, and the two-pass step's update pass or the tiled step's critical-dt force.
+step (``fast/step.py``), the energy report (``core/energy.py`` and the terms' kernels)
+and the force behind the critical dt. Most of the step's compile is its vertex pass, which
+the small meshes' one-region step shares with the critical dt's force (one step of
+dt = 0); the tiled step (large meshes) has a vertex pass of its own. :func:`start` has a
+second process compile, meanwhile, what does not depend on the step: the energy report,
+and the tiled step's critical-dt force.
 
 numba looks a kernel up in its cache whenever it is about to compile it, for itself or as
 the callee of another kernel, so the node loads what the second process finished in
@@ -36,9 +36,9 @@ LOCK_SECONDS = 600.0
 def _index_path() -> Optional[str]:
     """The energy report's vertex kernel's cache index file; where numba keeps it is not
     public API, so None if that lookup fails."""
-    from .terms.jet import vertex_pass
+    from .terms.jet import vertex_energies
     try:
-        return vertex_pass._cache._cache_file._index_path
+        return vertex_energies._cache._cache_file._index_path
     except AttributeError:
         return None
 
@@ -100,11 +100,11 @@ def start(tiled: bool = False, coupled: bool = True) -> Optional[subprocess.Pope
 
 def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True) -> int:
     """Compile into the cache, with the argument types of the node's start-up (a small
-    sheet has the same types as any other), what the node needs after its step: the
-    energy report, and for the two-pass step its update pass (which the step's compile
-    would otherwise reach last), for the tiled step the critical dt's force (the two-pass
-    vertex pass, which the tiled step does not share). Then remove the lock file ``lock``
-    that :func:`start` took."""
+    sheet has the same types as any other), what the node needs besides its step: the
+    energy report, and for the tiled step the critical dt's force (the two-pass vertex
+    pass, which the tiled step does not share); where the one-region step does not apply
+    (more threads than CPUs) the two-pass step's update pass, which its compile would
+    otherwise reach last. Then remove the lock file ``lock`` that :func:`start` took."""
     try:
         _compile(tiled, coupled)
     finally:
@@ -118,15 +118,20 @@ def _compile(tiled: bool, coupled: bool):
     from .material import Material
     from .mesh import grid_mesh
     from .simulator import ClothSimulator
+    from . import energy
     sim = ClothSimulator(grid_mesh(4, 4), Material(zeta=50.0, xi=2e-5,
                                                    phi=1e-6 if coupled else 0.0,
                                                    density=0.2, damping=0.1),
                          dt=1e-5, check_dt=False)
-    sim.energy_and_densities()
+    # the report's own kernels (its internal force is the step's, which the node compiles)
+    energy.report(sim.model, sim.coefficients, sim.state, sim.control, sim.dt, sim._scratch,
+                  np.zeros((sim.n_vertices, 3)))
+    s, m = sim.solver, sim.model
     if tiled:
-        sim.internal_forces()
-    else:
-        s, m = sim.solver, sim.model
+        run = fast_step.elastic_forces_coupled if coupled else fast_step.elastic_forces
+        run(sim.state.x, sim.coefficients, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
+            s.lanes, s.plan, s.work, np.zeros((sim.n_vertices, 3)))
+    elif not s._share_threads():
         fast_step.integrate(m.jets.tr_ptr, m.vertex_faces.ptr, s.plan, s.work,
                             sim.state.x.copy(), sim.state.v.copy(), sim.control,
                             sim.coefficients, sim.dt, 1.0, np.zeros(2))

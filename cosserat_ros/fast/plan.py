@@ -114,7 +114,7 @@ def _rings(model, lanes, nch, tile_ch, part_tile, key, fc_ptr, fc_face):
     g_vert, g_ptr, g_wptr = lanes.g_vert, lanes.g_ptr, lanes.g_wptr
     jet, mesh = model.jet, model.mesh
     st_ptr, st_idx = jet.st_ptr, jet.st_idx
-    faces, vf_face = mesh.faces, mesh.vf_face
+    faces, vf_face = mesh.faces, model.vertex_faces.face
     K, m = len(st_idx), len(faces)
     tile_of_chunk = np.searchsorted(tile_ch, np.arange(nch), 'right') - 1
     pos_of_tr = lanes.pos[jet.tr_slot]
@@ -142,7 +142,7 @@ def _rings(model, lanes, nch, tile_ch, part_tile, key, fc_ptr, fc_face):
     slot_of_face = np.empty(m, dtype=np.int64)
     slot_of_face[fc_face] = base
     # 32-bit: the gathers stream 4 bytes per index, and one index per face
-    vf_row = 3 * slot_of_face[vf_face] + mesh.vf_corner
+    vf_row = 3 * slot_of_face[vf_face] + model.vertex_faces.corner
     return w, tr.astype(np.uint32), base.astype(np.uint32), vf_row.astype(np.uint32)
 
 

@@ -33,11 +33,11 @@ import numpy as np
 
 from ..core.compiled import kernel
 from ..core.solvers.update import advance_vertex
-from .lanes import vertex_chunk, vertex_chunk_coupled
-from .workshare import claim, split
+from .lanes import vertex_chunk
+from .workshare import arrive, claim, split
 
-__all__ = ['Work', 'run_two_pass', 'run_two_pass_coupled', 'run_tiled', 'run_tiled_coupled',
-           'elastic_forces', 'elastic_forces_coupled']
+__all__ = ['Work', 'run_two_pass', 'run_two_pass_coupled', 'run_region', 'run_region_coupled',
+           'run_tiled', 'run_tiled_coupled', 'elastic_forces', 'elastic_forces_coupled']
 
 
 class Work(NamedTuple):
@@ -49,6 +49,8 @@ class Work(NamedTuple):
     share: np.ndarray       # (T+1,) int64 work-sharing state of the passes (workshare.py)
     part: np.ndarray        # (nch, 3) the update's work, dissipation, bad per chunk
     force: np.ndarray       # (n, 3) the internal force of the last step
+    ushare: np.ndarray      # (T+1,) int64 the update's work-sharing state (run_region)
+    sync: np.ndarray        # (2,) int64 run_region's barrier count and the steps done
 
 
 @kernel(inline='always')
@@ -59,16 +61,28 @@ def _vertex_pass(x, lanes, plan, faces, vf, vertices, coeff, work, coupled):
     ``prange(nch)`` the step ran 0.87 / 0.97x at N = 40 / 20 (docs/performance.md).
     ``coupled``: a literal, one kernel each (:func:`vertex_pass`,
     :func:`vertex_pass_coupled`)."""
+    g_vert, g_ptr, s_vert, s_ptr, s_wptr = (lanes.g_vert, lanes.g_ptr, lanes.s_vert,
+                                            lanes.s_ptr, lanes.s_wptr)
+    ln_idx, ln_w, ln_uv, ln_sigma = lanes.idx, lanes.w, lanes.uv, lanes.sigma
+    sp_P, sp_entry, sp_ebar0 = lanes.sp_P, lanes.sp_entry, lanes.sp_ebar0
+    g_wptr, fc_ptr, fc_slot = plan.g_wptr, plan.fc_ptr, plan.fc_slot
+    fc_vert, fc_tpl, t_dinv, t_area = plan.fc_vert, plan.fc_tpl, plan.t_dinv, plan.t_area
+    corners, dinv, face_area, K_face = faces.corners, faces.dinv, faces.area, faces.K
+    vf_ptr, vf_face, vf_corner, vf_entry, vf_K = vf.ptr, vf.face, vf.corner, vf.entry, vf.K
+    dual_area, ainv, rest_b = vertices.dual_area, vertices.ainv, vertices.rest_b
+    zeta, xi, phi, stab = coeff.zeta, coeff.xi, coeff.phi, coeff.stab
+    fgrad, contrib, scratch = work.fgrad, work.contrib, work.scratch
     share = work.share
     nch = plan.tile_ch[plan.tile_ch.shape[0] - 1]
     nr = split(share, nch)
     for t in nb.prange(nr):
         c, k = claim(share, t, nr, 0)
         while c >= 0:
-            if coupled:
-                vertex_chunk_coupled(c, nch, c, x, lanes, plan, faces, vf, vertices, coeff, work)
-            else:
-                vertex_chunk(c, nch, c, x, lanes, plan, faces, vf, vertices, coeff, work)
+            vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+                         ln_w, ln_uv, ln_sigma, sp_P, sp_entry, sp_ebar0, stab, dual_area, ainv,
+                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face, vf_ptr,
+                         vf_face, vf_corner, vf_entry, vf_K, fc_vert, t_dinv, t_area, zeta, fc_ptr,
+                         fc_tpl, fc_slot, fgrad, coupled)
             c, k = claim(share, t, nr, k)
 
 
@@ -203,6 +217,99 @@ def run_two_pass_coupled(nsteps, state, control, coeff, faces, vf, vertices, tr_
     return nsteps
 
 
+@kernel(inline='always')
+def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes, plan,
+                work, dt, vmax2, nthr, coupled):
+    """:func:`run_two_pass` in one parallel region for all ``nsteps`` steps, of ``nthr``
+    iterations, one per thread (the threads numba runs, from Python). Per step: the
+    vertex pass (chunks shared through ``work.share``), a barrier
+    (:func:`.workshare.arrive`), the gather and update (chunks shared through
+    ``work.ushare``), a barrier. Each work-sharing state is re-split by one thread while
+    the others are in the other pass. Every thread then reads the chunks' bad counts, so
+    that all leave at the same step, and one adds their work and dissipation to ``acc``
+    in chunk order. The same numbers as the two passes, to the bit, without opening two
+    parallel regions per step (~1.6 us each here, against ~0.14 us per barrier). Returns
+    the steps done: fewer than ``nsteps`` when one went bad.
+
+    The barrier waits for every iteration, so all ``nthr`` must run at once: the solver
+    uses this kernel only with numba's static schedule on the OpenMP or workqueue layer
+    and a CPU per thread (``core/solvers/explicit.py``). With ``nsteps`` = 1 and ``dt`` = 0
+    it is the internal force alone (in ``work.force``; x and v stay as they are), so that a
+    process compiles the vertex code once."""
+    x, v, acc = state.x, state.v, state.acc
+    g_vert, g_ptr, s_vert, s_ptr, s_wptr = (lanes.g_vert, lanes.g_ptr, lanes.s_vert,
+                                            lanes.s_ptr, lanes.s_wptr)
+    ln_idx, ln_w, ln_uv, ln_sigma = lanes.idx, lanes.w, lanes.uv, lanes.sigma
+    sp_P, sp_entry, sp_ebar0 = lanes.sp_P, lanes.sp_entry, lanes.sp_ebar0
+    g_wptr, fc_ptr, fc_slot = plan.g_wptr, plan.fc_ptr, plan.fc_slot
+    fc_vert, fc_tpl, t_dinv, t_area = plan.fc_vert, plan.fc_tpl, plan.t_dinv, plan.t_area
+    corners, dinv, face_area, K_face = faces.corners, faces.dinv, faces.area, faces.K
+    vf_ptr, vf_face, vf_corner, vf_entry, vf_K = vf.ptr, vf.face, vf.corner, vf.entry, vf.K
+    dual_area, ainv, rest_b = vertices.dual_area, vertices.ainv, vertices.rest_b
+    zeta, xi, phi, stab = coeff.zeta, coeff.xi, coeff.phi, coeff.stab
+    fgrad, contrib, scratch = work.fgrad, work.contrib, work.scratch
+    share, ushare, sync, part, force = work.share, work.ushare, work.sync, work.part, work.force
+    vf_row, tr_slot = plan.vf_row, plan.tr_slot
+    frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
+    nch = plan.tile_ch[plan.tile_ch.shape[0] - 1]
+    nuc = part.shape[0]
+    size = (x.shape[0] + nuc - 1) // nuc
+    nr = split(share, nch)
+    nu = split(ushare, nuc)
+    sync[0] = 0
+    sync[1] = nsteps
+    for t in nb.prange(nthr):
+        for s in range(nsteps):
+            if t == 0 and s > 0:
+                split(ushare, nuc)          # the others are in the vertex pass
+            c, k = claim(share, t, nr, 0)
+            while c >= 0:
+                vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
+                             ln_idx, ln_w, ln_uv, ln_sigma, sp_P, sp_entry, sp_ebar0, stab,
+                             dual_area, ainv, rest_b, xi, phi, scratch, contrib, corners, dinv,
+                             face_area, K_face, vf_ptr, vf_face, vf_corner, vf_entry, vf_K,
+                             fc_vert, t_dinv, t_area, zeta, fc_ptr, fc_tpl, fc_slot, fgrad,
+                             coupled)
+                c, k = claim(share, t, nr, k)
+            arrive(sync, 2 * s + 1, nthr)
+            if t == 0:
+                split(share, nch)           # the others are in the update
+            c, k = claim(ushare, t, nu, 0)
+            while c >= 0:
+                _update_chunk(c, size, vf_ptr, vf_row, tr_ptr, tr_slot, frow, contrib, x, v,
+                              force, control, coeff, dt, vmax2, part)
+                c, k = claim(ushare, t, nu, k)
+            arrive(sync, 2 * s + 2, nthr)
+            bad = 0
+            for c in range(nuc):
+                bad += int(part[c, 2])
+            if t == 0:
+                for c in range(nuc):
+                    acc[0] += part[c, 0]
+                    acc[1] += part[c, 1]
+                if bad > 0:
+                    sync[1] = s
+            if bad > 0:
+                break
+    return sync[1]
+
+
+@kernel(parallel=True)
+def run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes, plan, work,
+               dt, vmax2, nthr):
+    """:func:`_run_region` without coupling (phi = 0)."""
+    return _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes, plan,
+                       work, dt, vmax2, nthr, False)
+
+
+@kernel(parallel=True)
+def run_region_coupled(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes, plan,
+                       work, dt, vmax2, nthr):
+    """:func:`_run_region` with the coupling (phi != 0)."""
+    return _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes, plan,
+                       work, dt, vmax2, nthr, True)
+
+
 @kernel()
 def elastic_forces(x, coeff, faces, vf, vertices, tr_ptr, lanes, plan, work, force):
     """Internal force -dE/dx (n,3) [N] of the three elastic terms at positions x (the
@@ -255,10 +362,20 @@ def _vertex_parts(x, v, lanes, plan, faces, vf, vertices, tr_ptr, control, coeff
     this core's cache, and updating x[j] there is safe (:mod:`.plan`). The seam vertices
     between parts (the last range of ``gl_ptr``) are left for :func:`integrate_seam`.
     Writes (external work, dissipation, bad vertices) of part p to pacc[p]."""
+    g_vert, g_ptr, s_vert, s_ptr, s_wptr = (lanes.g_vert, lanes.g_ptr, lanes.s_vert,
+                                            lanes.s_ptr, lanes.s_wptr)
+    ln_idx, ln_w, ln_uv, ln_sigma = lanes.idx, lanes.w, lanes.uv, lanes.sigma
+    sp_P, sp_entry, sp_ebar0 = lanes.sp_P, lanes.sp_entry, lanes.sp_ebar0
+    g_wptr, fc_ptr, fc_slot = plan.g_wptr, plan.fc_ptr, plan.fc_slot
+    fc_vert, fc_tpl, t_dinv, t_area = plan.fc_vert, plan.fc_tpl, plan.t_dinv, plan.t_area
+    corners, dinv, face_area, K_face = faces.corners, faces.dinv, faces.area, faces.K
+    vf_ptr, vf_face, vf_corner, vf_entry, vf_K = vf.ptr, vf.face, vf.corner, vf.entry, vf.K
+    dual_area, ainv, rest_b = vertices.dual_area, vertices.ainv, vertices.rest_b
+    zeta, xi, phi, stab = coeff.zeta, coeff.xi, coeff.phi, coeff.stab
+    fgrad, contrib, scratch = work.fgrad, work.contrib, work.scratch
     tile_ch, gl_ptr, gl_vert, part_tile, tr_slot, vf_row = (
         plan.tile_ch, plan.gl_ptr, plan.gl_vert, plan.part_tile, plan.tr_slot, plan.vf_row)
-    vf_ptr = vf.ptr
-    fgrad, contrib, force = work.fgrad, work.contrib, work.force
+    force = work.force
     nch = tile_ch[tile_ch.shape[0] - 1]
     frow = fgrad.reshape((fgrad.shape[0] * 3, 3))
     for p in nb.prange(part_tile.shape[0] - 1):
@@ -270,11 +387,11 @@ def _vertex_parts(x, v, lanes, plan, faces, vf, vertices, tr_ptr, control, coeff
         # one loop over the part's chunks (not tiles, then chunks: the deeper nest cost the
         # vertex code ~5%); a tile's vertices are gathered after its last chunk
         for ch in range(tile_ch[t], tile_ch[part_tile[p + 1]]):
-            if coupled:
-                vertex_chunk_coupled(ch, nch, row, x, lanes, plan, faces, vf, vertices, coeff,
-                                     work)
-            else:
-                vertex_chunk(ch, nch, row, x, lanes, plan, faces, vf, vertices, coeff, work)
+            vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
+                         ln_w, ln_uv, ln_sigma, sp_P, sp_entry, sp_ebar0, stab, dual_area, ainv,
+                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face, vf_ptr,
+                         vf_face, vf_corner, vf_entry, vf_K, fc_vert, t_dinv, t_area, zeta, fc_ptr,
+                         fc_tpl, fc_slot, fgrad, coupled)
             if ch + 1 == tile_ch[t + 1]:
                 dw, dd, db = _gather_update(gl_ptr[t], gl_ptr[t + 1], gl_vert, vf_ptr, vf_row,
                                             frow, tr_ptr, tr_slot, contrib, x, v, force,

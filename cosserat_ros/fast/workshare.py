@@ -31,15 +31,23 @@ Which thread runs an item changes from call to call; what the item computes does
 pass that writes each item's results to places of their own (and sums per item, not per
 thread: see ``integrate`` in ``fast/step.py``) therefore gives the same numbers to the bit
 as the static split. The intrinsics work only in compiled code.
+
+:func:`arrive` is a barrier on the same compare-and-swap, for a region that runs several
+passes one after the other (``run_region`` in ``fast/step.py``).
 """
 from __future__ import annotations
 
+import functools
+import os
+
+import numba as nb
+import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 from ..core.compiled import kernel
 
-__all__ = ['split', 'take', 'claim']
+__all__ = ['split', 'take', 'claim', 'arrive', 'usable_cpus', 'start_threads']
 
 _LOW = 0xFFFFFFFF
 
@@ -117,3 +125,58 @@ def claim(state, t, nr, k):
             return c, k
         k += 1
     return -1, k
+
+
+@kernel(inline='always')
+def arrive(sync, k, n):
+    """Barrier of ``n`` threads inside one parallel region: the k-th time (from 1) a thread
+    calls it, it returns once all n have called it k times. ``sync[0]``, zero before the
+    region, counts the arrivals (one compare-and-swap each) and never goes back, so no
+    sense flag is needed. It costs ~0.14 us here, against ~1.6 us for opening a parallel
+    region. Every one of the n threads must be running at once: the caller's ``prange``
+    has exactly as many iterations as the threads numba runs, one per thread, each on a
+    CPU of its own (:func:`usable_cpus`)."""
+    while True:
+        w = atomic_load(sync, 0)
+        if atomic_cas(sync, 0, w, w + 1):
+            break
+    target = k * n
+    while atomic_load(sync, 0) < target:
+        pass
+
+
+@functools.lru_cache(maxsize=None)
+def usable_cpus() -> int:
+    """The CPUs this process can run on at once (read once): its affinity mask, capped by
+    a cgroup v2 CPU quota (``/sys/fs/cgroup/cpu.max``, rounded down). A spin barrier
+    (:func:`arrive`) is only for threads that each have a CPU of their own: with four
+    threads on two CPUs the one-region step took 8.1 ms per step at N = 20 / 40, against
+    0.21 / 0.44 ms for a parallel region per pass, whose OpenMP barrier goes to sleep."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:                      # not on Linux
+        n = os.cpu_count() or 1
+    try:
+        with open('/sys/fs/cgroup/cpu.max') as fh:
+            quota, period = fh.read().split()[:2]
+        if quota != 'max':
+            n = min(n, max(1, int(quota) // int(period)))
+    except (OSError, ValueError):
+        pass
+    return n
+
+
+@kernel(parallel=True)
+def _first_region(a):
+    for i in nb.prange(a.shape[0]):
+        a[i] = i
+
+
+def start_threads() -> str:
+    """numba's threading layer, which it picks when the process first runs a parallel
+    region: one of two iterations is run here if none has run yet."""
+    try:
+        return nb.threading_layer()
+    except ValueError:
+        _first_region(np.zeros(2))
+        return nb.threading_layer()

@@ -1,18 +1,21 @@
-"""``make bench`` / ``python -m cosserat_ros.bench``: what a step costs, printed as tables.
+"""``make bench`` / ``python -m cosserat_ros.tools.bench``: what a step costs, as tables.
 
-The scene of issue 6 (:mod:`.peer_mujoco`): a 1 m square sheet, N x N grid, all four edges
-pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3, D = 1e-4 N m
-(zeta = 3 E h / 16, xi = D / 6). Shared machines are noisy: compare ratios measured in one
-run. Three parts:
+Two scenes (:data:`.peer_mujoco.SCENES`): the one of issue 6 (a 1 m square sheet, N x N
+grid, all four edges pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3,
+D = 1e-4 N m, no coupling) and the shipped ``config/cloth.yaml`` (its material, coupling
+phi = 1e-6 N included, pinned at the two top corners). Shared machines are noisy: compare
+ratios measured in one run. Three parts:
 
-1. ``ours``: for each N, the median ms/step of repeated batches after warm-up (forces +
-   integration, no publishing), steps/s, the largest stable dt (``critical_dt``), the
-   real-time factor at 0.9 of it, the ratio to the seed's Table 1 (7.52 / 24.97 / 70.87 ms
-   at 20 / 40 / 80), the cost of building one mesh message, the first-call (compile or
-   cache load) time, memory of state and operators per vertex, threads.
-2. ``peer`` (needs the ``mujoco`` wheel): MuJoCo's flex on the same scene, Euler and
-   ``discrete``, at our dt and at its own largest stable dt, beside ours; and the settled
-   centre sag of both (about 0.0354 m).
+1. ``ours``, per scene: for each N, the median ms/step of repeated batches after warm-up
+   (forces + integration, no publishing), the cost per vertex, steps/s, the largest stable
+   dt (``critical_dt``), the real-time factor at 0.9 of it, the ratio to the seed's Table
+   1 (7.52 / 24.97 / 70.87 ms at 20 / 40 / 80), the cost of building one mesh message
+   and of the energy report, the first-call (compile or cache load) time, memory of state
+   and operators per vertex, threads.
+2. ``peer`` (needs the ``mujoco`` wheel), per scene: MuJoCo's flex on the same scene,
+   Euler (and on the issue-6 scene ``discrete``), at our dt and at its own largest stable
+   dt, beside ours, with the ratio of step times measured in alternating batches; and the
+   settled centre sag of both on the issue-6 scene (about 0.0354 m).
 3. ``node``: the installed ``cloth_node`` started as ``ros2 run`` starts it: process start to
    first mesh message with a cold and a warm compile cache, and the real-time factor of a
    40 x 40 cloth publishing at 30 Hz, beside the real-time factor of the same cloth
@@ -37,8 +40,18 @@ from ..core.simulator import ClothSimulator, Material
 from ..ros.conversions import colormap, mesh_marker_array
 
 SEED_MS = {20: 7.52, 40: 24.97, 80: 70.87}
-SCENE = Material.from_plate(youngs_2d=peer.YOUNGS_2D, bending=peer.BENDING,
-                            density=peer.DENSITY)
+
+
+def scene_material(scene: peer.Scene, damping=None) -> Material:
+    """Our material for a benchmark scene (``damping``: instead of the scene's own)."""
+    return Material.from_plate(youngs_2d=scene.youngs_2d, bending=scene.bending,
+                               density=scene.density, phi=scene.phi,
+                               damping=scene.damping if damping is None else damping)
+
+
+ISSUE6 = peer.SCENES['issue6']
+CLOTH = peer.SCENES['cloth']
+SCENE = scene_material(ISSUE6)
 #: damping rate [1/s] used to settle the sheet for the sag comparison (both engines)
 SETTLE_RATE = 20.0
 SETTLE_TIME = 2.0      # [s]
@@ -61,13 +74,17 @@ def _bytes(sim: ClothSimulator) -> int:
     return sum(seen.values())
 
 
-def scene_simulator(n: int, damping: float = 0.0) -> ClothSimulator:
-    """The benchmark sheet, all edges pinned, under gravity, at DT_FRACTION of critical."""
+def scene_pins(mesh, scene: peer.Scene) -> np.ndarray:
+    """The pinned vertices of a scene on our grid (the same as MuJoCo's pins)."""
+    from ..ros.params import pin_set
+    return pin_set(mesh, scene.pins)
+
+
+def scene_simulator(n: int, damping=None, scene: peer.Scene = ISSUE6) -> ClothSimulator:
+    """A benchmark sheet, pinned and under gravity, at DT_FRACTION of its critical dt."""
     mesh = grid_mesh(n, n)
-    mat = Material.from_plate(youngs_2d=peer.YOUNGS_2D, bending=peer.BENDING,
-                              density=peer.DENSITY, damping=damping)
-    sim = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
-    sim.pin(mesh.boundary_vertices)
+    sim = ClothSimulator(mesh, scene_material(scene, damping), dt=1e-5, check_dt=False)
+    sim.pin(scene_pins(mesh, scene))
     sim.gravity = (0.0, 0.0, -peer.GRAVITY)
     sim.dt = DT_FRACTION * sim.critical_dt()
     return sim
@@ -103,12 +120,12 @@ def step_rtf(sim: ClothSimulator, batch_s: float = 0.1, repeats: int = 5,
 
 
 def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int = 7,
-          warmup_s: float = 0.5):
-    """Our step cost on the scene (see the module docstring, part 1)."""
+          warmup_s: float = 0.5, scene: peer.Scene = ISSUE6):
+    """Our step cost on a scene (see the module docstring, part 1)."""
     mesh = grid_mesh(n, n, pattern=pattern, seed=0)
     t0 = time.perf_counter()
-    sim = ClothSimulator(mesh, SCENE, dt=1e-5, check_dt=False)
-    sim.pin(mesh.boundary_vertices)
+    sim = ClothSimulator(mesh, scene_material(scene), dt=1e-5, check_dt=False)
+    sim.pin(scene_pins(mesh, scene))
     sim.gravity = (0.0, 0.0, -peer.GRAVITY)
     sim.step(1)
     first = time.perf_counter() - t0
@@ -121,7 +138,13 @@ def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int =
     for _ in range(5):
         mesh_marker_array(sim.positions, mesh.faces, col, 0, 'world')
     pub_ms = 1e3 * (time.perf_counter() - t) / 5
+    sim.energy_and_densities()
+    t = time.perf_counter()
+    for _ in range(5):
+        sim.energy_and_densities()
+    energy_ms = 1e3 * (time.perf_counter() - t) / 5
     return {'N': n, 'vertices': mesh.n_vertices, 'pattern': pattern, 'ms': ms,
+            'ns_vertex': 1e6 * ms / mesh.n_vertices, 'energy_ms': energy_ms,
             'steps_s': 1e3 / ms, 'crit_dt': crit, 'dt': sim.dt,
             'rtf': rtf,
             'seed_ratio': SEED_MS[n] / ms if n in SEED_MS else float('nan'),
@@ -129,13 +152,14 @@ def bench(n: int, pattern: str = 'regular', batch_s: float = 0.2, repeats: int =
             'bytes_per_vertex': _bytes(sim) / mesh.n_vertices}
 
 
-def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1) -> float:
+def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1,
+                 scene: peer.Scene = ISSUE6) -> float:
     """MuJoCo Euler's ms/step over ours at our dt, both on the scene, as the median over
     ``pairs`` pairs of back-to-back batches (the order alternating): the load of a shared
     machine drifts over minutes, which a ratio of two separate medians would take in.
     nan if MuJoCo goes bad at our dt."""
-    sim = scene_simulator(n)
-    theirs = peer.stepper(n, 'Euler', sim.dt)
+    sim = scene_simulator(n, scene=scene)
+    theirs = peer.stepper(n, 'Euler', sim.dt, scene)
     runners = (sim.step, theirs)
     ks = [_batch_size(run, 0.3, batch_s) for run in runners]
     ratios = []
@@ -150,7 +174,7 @@ def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1) -> float:
 
 
 def settled_sag(n: int) -> float:
-    """Our centre sag [m] after SETTLE_TIME s of damped settling."""
+    """Our centre sag [m] on the issue-6 scene after SETTLE_TIME s of damped settling."""
     sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY)
     sim.step(int(round(SETTLE_TIME / sim.dt)))
     return -float(sim.positions[:, 2].min())
@@ -176,30 +200,35 @@ def _f(x: float, fmt: str) -> str:
     return '-' if x != x else format(x, fmt)
 
 
-def part_ours(sizes, pattern):
-    print('\n## ours\n')
-    _table(('N', 'vertices', 'pattern', 'ms/step', 'steps/s', 'crit dt [s]',
-            f'RTF@{DT_FRACTION}crit', 'x seed', 'publish ms', 'first call s', 'B/vertex',
-            'threads'))
+def part_ours(sizes, pattern, scene=ISSUE6):
+    print(f'\n## ours: scene {scene.name}\n')
+    _table(('N', 'vertices', 'pattern', 'ms/step', 'ns/vertex', 'steps/s', 'crit dt [s]',
+            f'RTF@{DT_FRACTION}crit', 'x seed', 'publish ms', 'energy ms', 'first call s',
+            'B/vertex', 'threads'))
     rows = {}
     for n in sizes:
-        r = bench(n, pattern)
+        r = bench(n, pattern, scene=scene)
         rows[n] = r
         print(f"| {r['N']} | {r['vertices']} | {r['pattern']} | {r['ms']:.3f} | "
-              f"{r['steps_s']:.0f} | {r['crit_dt']:.2e} | {r['rtf']:.2f} | "
-              f"{_f(r['seed_ratio'], '.0f')} | {r['publish_ms']:.2f} | "
-              f"{r['first_call_s']:.1f} | {r['bytes_per_vertex']:.0f} | "
-              f"{numba.get_num_threads()} |", flush=True)
+              f"{r['ns_vertex']:.0f} | {r['steps_s']:.0f} | {r['crit_dt']:.2e} | "
+              f"{r['rtf']:.2f} | {_f(r['seed_ratio'], '.0f')} | {r['publish_ms']:.2f} | "
+              f"{r['energy_ms']:.2f} | {r['first_call_s']:.1f} | "
+              f"{r['bytes_per_vertex']:.0f} | {numba.get_num_threads()} |", flush=True)
+    big = [n for n in sizes if n >= 40]
+    if len(big) > 1:
+        per = [rows[n]['ns_vertex'] for n in big if n <= 160]
+        print(f'\nCost per vertex from N = {big[0]} to {min(max(big), 160)}: '
+              f'max / min = {max(per) / min(per):.2f}', flush=True)
     return rows
 
 
-def part_peer(ours, sizes, sag_sizes):
+def part_peer(ours, sizes, sag_sizes, scene=ISSUE6, discrete=True):
     version = peer.available()
     if version is None:
         print('\n## peer\n\nmujoco is not installed (pip install -r requirements-bench.txt); '
               'skipped.')
         return
-    print(f'\n## peer: MuJoCo {version} flex, one thread, on the same scene\n')
+    print(f'\n## peer: MuJoCo {version} flex, one thread, on scene {scene.name}\n')
     print('"at our dt": stepping at our dt (0.9 of our critical dt); "own stable dt": the '
           'largest dt of a 1.25x ladder that stays bounded from noise (400 steps for Euler, '
           '60 for `discrete`, which is tried from 1/60 s down). "x ours" = its ms/step / '
@@ -210,15 +239,19 @@ def part_peer(ours, sizes, sag_sizes):
             'own stable dt [s]', 'ms/step there', 'RTF there'))
     for n in sizes:
         r = ours[n]
-        print(f"| {n} | ours (explicit, 2 threads) | {r['ms']:.3f} | 1 | 1 | "
-              f"{r['crit_dt']:.2e} | {r['ms']:.3f} | {r['crit_dt'] / (r['ms'] * 1e-3):.2f} |",
-              flush=True)
-        for integ, start in (('Euler', r['crit_dt'] / 0.8 * 1.25 ** 2), ('discrete', 1 / 60)):
-            stable = peer.stable(n, integ, r['dt'])
-            same = peer.ms_per_step(n, integ, r['dt']) if stable else float('nan')
-            paired = paired_ratio(n) if stable and integ == 'Euler' else float('nan')
-            dt = peer.largest_stable_dt(n, integ, start)
-            there = peer.ms_per_step(n, integ, dt) if dt == dt else float('nan')
+        print(f"| {n} | ours (explicit, {numba.get_num_threads()} threads) | {r['ms']:.3f} | 1 "
+              f"| 1 | {r['crit_dt']:.2e} | {r['ms']:.3f} | "
+              f"{r['crit_dt'] / (r['ms'] * 1e-3):.2f} |", flush=True)
+        engines = (('Euler', r['crit_dt'] / 0.8 * 1.25 ** 2),) + (
+            (('discrete', 1 / 60),) if discrete else ())
+        for integ, start in engines:
+            stable = peer.stable(n, integ, r['dt'], scene=scene)
+            same = (peer.ms_per_step(n, integ, r['dt'], scene=scene) if stable
+                    else float('nan'))
+            paired = (paired_ratio(n, scene=scene) if stable and integ == 'Euler'
+                      else float('nan'))
+            dt = peer.largest_stable_dt(n, integ, start, scene=scene)
+            there = peer.ms_per_step(n, integ, dt, scene=scene) if dt == dt else float('nan')
             print(f"| {n} | MuJoCo {integ} | {_f(same, '.3f')} | {_f(same / r['ms'], '.2f')} "
                   f"| {_f(paired, '.2f')} | {_f(dt, '.2e')} | {_f(there, '.3f')} | "
                   f"{_f(dt / (there * 1e-3), '.2f')} |", flush=True)
@@ -368,12 +401,18 @@ def main(argv=None):
     ap.add_argument('--sag-sizes', type=int, nargs='*', default=[20, 40])
     ap.add_argument('--node-seconds', type=float, default=6.0,
                     help='how long each node case is watched (0 = skip the node part)')
+    ap.add_argument('--scenes', nargs='*', default=list(peer.SCENES),
+                    choices=list(peer.SCENES))
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
-    ours = part_ours(a.sizes, a.pattern)
-    peer_sizes = [n for n in a.peer_sizes if n in ours]
-    if peer_sizes or a.sag_sizes:
-        part_peer(ours, peer_sizes, a.sag_sizes)
+    for name in a.scenes:
+        scene = peer.SCENES[name]
+        # the shipped scene up to N = 160 (its 320 x 320 adds minutes and nothing new)
+        ours = part_ours([n for n in a.sizes if scene is ISSUE6 or n <= 160], a.pattern, scene)
+        peer_sizes = [n for n in a.peer_sizes if n in ours]
+        sag = a.sag_sizes if scene is ISSUE6 else []
+        if peer_sizes or sag:
+            part_peer(ours, peer_sizes, sag, scene, discrete=scene is ISSUE6)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')

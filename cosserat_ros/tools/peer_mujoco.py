@@ -1,11 +1,19 @@
-"""The benchmark scene of issue 6, and the peer engine on it: MuJoCo's 2-D flex.
+"""The benchmark scenes, and the peer engine on them: MuJoCo's 2-D flex.
 
 MuJoCo (the ``mujoco`` wheel) is a dev-only extra (``requirements-bench.txt``, installed
 by ``make bench``); nothing in the simulator or the node imports it, and this module
-imports it only inside the functions that run it. The scene is the one of :mod:`.bench`: a 1 m
-square, N x N grid, all four edges pinned, gravity, areal density 0.1 kg/m^2,
-E h = 500 N/m, nu = 1/3, D = 1e-4 N m. MuJoCo takes a 3-D Young's modulus and a
-thickness, so ``h = sqrt(12 (1 - nu^2) D / (E h))`` = 1.46 mm and ``E = (E h) / h``.
+imports it only inside the functions that run it. Two scenes (:data:`SCENES`), each a 1 m
+square on an N x N grid under gravity:
+
+* ``issue6``: all four edges pinned, areal density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3,
+  D = 1e-4 N m (the scene of issue 6);
+* ``cloth``: the shipped ``config/cloth.yaml`` (zeta = 50 N/m, xi = 2e-5 N m, i.e.
+  E h = 266.7 N/m and D = 1.2e-4 N m, density 0.2 kg/m^2, damping 0.1 kg/(m^2 s)), pinned
+  at the two top corners, falling and swinging (MuJoCo has no stretch-bend coupling; our
+  side keeps the shipped phi = 1e-6 N).
+
+MuJoCo takes a 3-D Young's modulus and a thickness, so ``h = sqrt(12 (1 - nu^2) D / (E h))``
+(1.46 mm for issue 6) and ``E = (E h) / h``.
 
 Every vertex of MuJoCo's grid carries mass ``density * spacing^2`` (the flexcomp ``mass``
 is spread evenly over the grid), which is what the lumped dual areas of our regular grid
@@ -14,6 +22,7 @@ is per-dof damping ``gamma * m`` (the same mass-proportional damping as our ``da
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 import functools
 import math
 import time
@@ -21,12 +30,31 @@ from typing import Optional
 
 import numpy as np
 
-#: the scene (bench.SCENE is built from these)
-YOUNGS_2D = 500.0      # E h [N/m]
-BENDING = 1e-4         # D [N m]
+@dataclass(frozen=True)
+class Scene:
+    """A benchmark sheet: E h [N/m], D [N m], density [kg/m^2], damping rho
+    [kg/(m^2 s)], phi [N] (ours only), and its pins: ``boundary`` or ``top_corners``."""
+
+    name: str
+    youngs_2d: float
+    bending: float
+    density: float
+    damping: float
+    phi: float
+    pins: str
+
+
+#: the scenes of the module docstring
+SCENES = {'issue6': Scene('issue6', 500.0, 1e-4, 0.1, 0.0, 0.0, 'boundary'),
+          'cloth': Scene('cloth', 16.0 * 50.0 / 3.0, 6.0 * 2e-5, 0.2, 0.1, 1e-6,
+                         'top_corners')}
+
+#: the issue-6 scene's constants (bench and tests read these)
+YOUNGS_2D = SCENES['issue6'].youngs_2d      # E h [N/m]
+BENDING = SCENES['issue6'].bending          # D [N m]
 POISSON = 1.0 / 3.0
-DENSITY = 0.1          # [kg/m^2]
-GRAVITY = 9.81         # [m/s^2]
+DENSITY = SCENES['issue6'].density          # [kg/m^2]
+GRAVITY = 9.81                              # [m/s^2]
 
 #: a probe diverged when a speed exceeds this [m/s] (the membrane wave speed is 75 m/s)
 PROBE_VMAX = 100.0
@@ -45,15 +73,16 @@ def available() -> Optional[str]:
     return mujoco.__version__
 
 
-def scene_xml(n: int, integrator: str, dt: float) -> str:
-    """MJCF of the benchmark sheet: flexcomp grid, dim 2, elastic2d stretch + bend."""
+def scene_xml(n: int, integrator: str, dt: float, scene: Scene = SCENES['issue6']) -> str:
+    """MJCF of a benchmark sheet: flexcomp grid, dim 2, elastic2d stretch + bend."""
     dt = float(dt)
-    thickness = math.sqrt(12.0 * (1.0 - POISSON ** 2) * BENDING / YOUNGS_2D)
-    young = YOUNGS_2D / thickness
+    thickness = math.sqrt(12.0 * (1.0 - POISSON ** 2) * scene.bending / scene.youngs_2d)
+    young = scene.youngs_2d / thickness
     h = 1.0 / n
-    mass = DENSITY * h * h * (n + 1) ** 2
-    pins = ''.join(f'<pin gridrange="{a}"/>' for a in (
-        f'0 0 {n} 0', f'0 {n} {n} {n}', f'0 0 0 {n}', f'{n} 0 {n} {n}'))
+    mass = scene.density * h * h * (n + 1) ** 2
+    ranges = ((f'0 0 {n} 0', f'0 {n} {n} {n}', f'0 0 0 {n}', f'{n} 0 {n} {n}')
+              if scene.pins == 'boundary' else (f'0 {n} 0 {n}', f'{n} {n} {n} {n}'))
+    pins = ''.join(f'<pin gridrange="{a}"/>' for a in ranges)
     return f"""<mujoco model="sheet{n}">
   <option timestep="{dt!r}" integrator="{integrator}" gravity="0 0 {-GRAVITY}"/>
   <worldbody>
@@ -74,27 +103,30 @@ def _count_warning(message: str) -> None:
     warning is read from ``data.warning`` instead of printed."""
 
 
-@functools.lru_cache(maxsize=2)
-def _compiled(n: int):
+@functools.lru_cache(maxsize=4)
+def _compiled(n: int, scene: Scene):
     """The scene's MjModel for N = n, compiled once: MuJoCo's compile of a flexcomp grid
     grows about as the square of the vertex count (0.4 / 6 / 15 s at N = 40 / 80 / 100 on
     a slow 2-core machine, minutes at 160), while the integrator, the time step and the
     damping are run-time fields of the model that :func:`build` sets per run."""
     import mujoco
-    return mujoco.MjModel.from_xml_string(scene_xml(n, 'Euler', 1e-4))
+    return mujoco.MjModel.from_xml_string(scene_xml(n, 'Euler', 1e-4, scene))
 
 
-def build(n: int, integrator: str, dt: float, damping_rate: float = 0.0):
+def build(n: int, integrator: str, dt: float, damping_rate: Optional[float] = None,
+          scene: Scene = SCENES['issue6']):
     """(model, data) of the scene, fresh data from rest; ``damping_rate`` gamma [1/s] adds
-    dof damping gamma m. The model is shared between runs of the same n (see
-    :func:`_compiled`); every call sets all the fields a run depends on, so a run must be
-    over before the next build of the same n."""
+    dof damping gamma m (None: the scene's own, damping / density). The model is shared
+    between runs of the same n and scene (see :func:`_compiled`); every call sets all the
+    fields a run depends on, so a run must be over before the next build of the same
+    n."""
     import mujoco
     mujoco.set_mju_user_warning(_count_warning)
-    model = _compiled(n)
+    model = _compiled(n, scene)
     model.opt.timestep = float(dt)
     model.opt.integrator = getattr(mujoco.mjtIntegrator, 'mjINT_' + integrator.upper())
-    model.dof_damping[:] = damping_rate * DENSITY / n ** 2
+    gamma = scene.damping / scene.density if damping_rate is None else damping_rate
+    model.dof_damping[:] = gamma * scene.density / n ** 2
     return model, mujoco.MjData(model)
 
 
@@ -106,13 +138,14 @@ def _bad(model, data) -> bool:
             or data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0)
 
 
-def stable(n: int, integrator: str, dt: float, steps: Optional[int] = None) -> bool:
+def stable(n: int, integrator: str, dt: float, steps: Optional[int] = None,
+           scene: Scene = SCENES['issue6']) -> bool:
     """Does the sheet stay bounded for ``steps`` steps (PROBE_STEPS by default) from rest,
     seeded with 1 um/s noise on every dof (so an unstable mode has something to grow
     from)?"""
     import mujoco
     steps = PROBE_STEPS.get(integrator, 400) if steps is None else steps
-    model, data = build(n, integrator, dt)
+    model, data = build(n, integrator, dt, scene=scene)
     data.qvel[:] = 1e-6 * np.random.default_rng(0).standard_normal(model.nv)
     done = 0
     while done < steps:
@@ -125,22 +158,22 @@ def stable(n: int, integrator: str, dt: float, steps: Optional[int] = None) -> b
 
 
 def largest_stable_dt(n: int, integrator: str, start: float, factor: float = 1.25,
-                      tries: int = 10) -> float:
+                      tries: int = 10, scene: Scene = SCENES['issue6']) -> float:
     """Largest dt of the ladder ``start * factor**-k`` (k = 0, 1, ...) that is stable; nan
     if none of ``tries`` rungs is."""
     dt = start
     for _ in range(tries):
-        if stable(n, integrator, dt):
+        if stable(n, integrator, dt, scene=scene):
             return dt
         dt /= factor
     return float('nan')
 
 
-def stepper(n: int, integrator: str, dt: float):
+def stepper(n: int, integrator: str, dt: float, scene: Scene = SCENES['issue6']):
     """``run(k)``: advance a fresh scene by k steps (the sheet falling from rest), for
     timing in alternation with our simulator; ``run.bad()`` tells if it went bad."""
     import mujoco
-    model, data = build(n, integrator, dt)
+    model, data = build(n, integrator, dt, scene=scene)
 
     def run(k: int) -> None:
         mujoco.mj_step(model, data, nstep=k)
@@ -149,10 +182,10 @@ def stepper(n: int, integrator: str, dt: float):
 
 
 def ms_per_step(n: int, integrator: str, dt: float, batch_s: float = 0.2,
-                repeats: int = 5) -> float:
+                repeats: int = 5, scene: Scene = SCENES['issue6']) -> float:
     """Median wall time of one step [ms] over ``repeats`` batches (the sheet falling from
     rest under gravity, as our own benchmark), nan if the run goes bad."""
-    run = stepper(n, integrator, dt)
+    run = stepper(n, integrator, dt, scene)
     run(2)
     t = time.perf_counter()
     run(3)

@@ -20,10 +20,12 @@ import numpy as np
 from ...fast.lanes import build_lanes
 from ...fast.plan import build_plan
 from ...fast.simd import LANES
+from ...fast.workshare import start_threads, usable_cpus
 from ...fast import step as _fast
 from ..compiled import kernel
 from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
 from ..terms import covariant, TERMS
+from ..state import Control, State
 from .update import advance_vertex
 
 __all__ = ['ExplicitSolver', 'reference_step', 'DIVERGENCE_METHODS', 'steps_tiled']
@@ -109,22 +111,39 @@ class ExplicitSolver:
         # the internal force alone runs the two-pass layout (every gradient in its slot)
         self.force_plan = (build_plan(model, self.lanes, nch, TILE_VERTICES, parts, False)
                            if self.tiled else self.plan)
-        # scratch slots per row: the largest lane group's stencil, padded by a cache line
+        # scratch rows per work item (fast/lanes.py: five of the jet, three of the
+        # coupling), their length the largest lane group's stencil, padded by a cache line
         # so that rows in use by two threads never share one (false sharing)
         lanes = LANES if simd else 1
         smax = -(-lanes * int(np.diff(model.jets.ptr).max()) // 8) * 8 + 8
+        threads = nb.config.NUMBA_NUM_THREADS + 1
         self.work = _fast.Work(np.zeros((m, 3, 3)), np.zeros((3, len(model.jets.idx))),
-                         np.zeros((nch, 5, smax)),
-                         np.zeros(nb.config.NUMBA_NUM_THREADS + 1, dtype=np.int64),
-                         np.zeros((nch, 3)), np.zeros((n, 3)))
+                               np.zeros((nch, 8, smax)), np.zeros(threads, dtype=np.int64),
+                               np.zeros((nch, 3)), np.zeros((n, 3)),
+                               np.zeros(threads, dtype=np.int64), np.zeros(2, dtype=np.int64))
+        # the internal force through the one-region step: x and v of its own, never read
+        self._force_state = State(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(2))
+        self._force_control = Control.empty(n)
         self.cov_work: Optional[covariant.Work] = (covariant.Work.zeros(n)
                                                    if divergence == 'covariant' else None)
 
-    def _share_threads(self) -> None:
-        """The work-sharing state's range count (``fast/workshare.py``), set from Python:
-        ``nb.get_num_threads()`` in compiled code makes numba refuse to cache the
-        kernel. A stale count gives the same numbers, only slower."""
-        self.work.share[0] = nb.get_num_threads()
+    def _share_threads(self) -> int:
+        """Set the work-sharing states' range count (``fast/workshare.py``) to the threads
+        numba runs now, from Python: ``numba.get_num_threads()`` in compiled code makes
+        numba refuse to cache the kernel. A stale count gives the same numbers, only
+        slower. Returns the thread count for the one-region step (``fast.step.run_region``)
+        or 0 where it does not apply: a tiled step, or where its barrier could wait for
+        ever or spin away the time of the threads it waits for: each of its iterations
+        must run on a thread of its own, at once, which numba's static schedule (no
+        ``set_parallel_chunksize``) on the OpenMP or workqueue layer does, and each thread
+        needs a CPU of its own (``workshare.usable_cpus``). numba picks its layer at the
+        first parallel call (``workshare.start_threads``)."""
+        nthr = nb.get_num_threads()
+        self.work.share[0] = nthr
+        self.work.ushare[0] = nthr
+        ok = (not self.tiled and nb.get_parallel_chunksize() == 0
+              and nthr <= usable_cpus() and start_threads() in ('omp', 'workqueue'))
+        return nthr if ok else 0
 
     def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
         """Advance ``nsteps`` steps in place; returns the steps completed (fewer means the
@@ -133,8 +152,12 @@ class ExplicitSolver:
         if self.divergence == 'covariant':
             return run_covariant(nsteps, state, control, coeff, m.jets, m.vertices, m.st_T,
                                  self.cov_work, self.work.part, self.work.force, dt, vmax2)
-        self._share_threads()
+        nthr = self._share_threads()
         coupled = coeff.phi != 0.0
+        if nthr:
+            run = _fast.run_region_coupled if coupled else _fast.run_region
+            return run(nsteps, state, control, coeff, m.faces, m.vertex_faces, m.vertices,
+                       m.jets.tr_ptr, self.lanes, self.plan, self.work, dt, vmax2, nthr)
         if self.tiled:
             run = _fast.run_tiled_coupled if coupled else _fast.run_tiled
         else:
@@ -149,8 +172,20 @@ class ExplicitSolver:
             covariant.covariant_forces(x, m.jets, m.vertices, m.st_T, coeff.zeta, coeff.xi,
                                        coeff.phi, self.cov_work, out)
             return
-        self._share_threads()
-        run = _fast.elastic_forces_coupled if coeff.phi != 0.0 else _fast.elastic_forces
+        nthr = self._share_threads()
+        coupled = coeff.phi != 0.0
+        if nthr:
+            # the step's own kernel, one step of dt = 0 (x and v stay; the force is the
+            # same to the bit), so that a process compiles the vertex code once
+            fs = self._force_state
+            fs.x[:] = x
+            fs.v[:] = 0.0
+            run = _fast.run_region_coupled if coupled else _fast.run_region
+            run(1, fs, self._force_control, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
+                self.lanes, self.plan, self.work, 0.0, np.inf, nthr)
+            out[:] = self.work.force
+            return
+        run = _fast.elastic_forces_coupled if coupled else _fast.elastic_forces
         run(x, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
                        self.lanes, self.force_plan, self.work, out)
 

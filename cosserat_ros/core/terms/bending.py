@@ -36,7 +36,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms
-from .jet import cross, gather, jet_fields
+from .jet import cross, gather, jet_energies, jet_fields
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'energy_from_fields']
 
@@ -50,7 +50,7 @@ def energy_from_fields(model, coeff, kap: np.ndarray, estab: np.ndarray) -> floa
 
 def energy(model, coeff, x: np.ndarray) -> float:
     """E_b [J] at positions x (n,3)."""
-    _, kap, estab = jet_fields(model, x, coeff.xi, 0.0, coeff.stab, np.zeros((len(x), 3)))
+    kap, estab = jet_energies(model, x, coeff.xi, 0.0, coeff.stab, np.zeros((len(x), 3)))
     return energy_from_fields(model, coeff, kap, estab)
 
 

@@ -26,7 +26,7 @@ Gradient
 Hessian blocks
 --------------
 ``E_c`` is a cross term: its Hessian in the strains ``(epsbar, kap)`` is
-``A_i phi [[0, Q], [Q, 0]]`` (``B(e, k) = e^T Q k``), indefinite, with positive part
+``A_i phi [[0, Q], [Q, 0]]`` (``B(e, k) = e^T Q k``, evaluated as :func:`..material.bilinear`), indefinite, with positive part
 ``A_i phi / 2 [[Q, Q], [Q, Q]]``. With ``J_e, J_k`` the Jacobians of ``epsbar_i`` and
 ``kap_i`` in x_j (Gauss-Newton: the normal held fixed, ``dkap = -W_k,ab n . dx``), the block
 is ``A_i phi / 2 (J_e + J_k)^T Q (J_e + J_k)``, positive semi-definite (``psd=True``); with
@@ -40,10 +40,10 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms, contract
-from .jet import gather, jet_fields
+from .jet import gather, jet_energies, jet_fields
 from .membrane import deformation_gradient, green_strain
 
-__all__ = ['energy', 'gradient', 'hessian_blocks', 'epsbar', 'add_face_side',
+__all__ = ['energy', 'gradient', 'hessian_blocks', 'epsbar', 'add_face_side', 'corner_rows',
            'strain_average', 'energy_from_fields']
 
 
@@ -95,7 +95,7 @@ def epsbar(i, x, faces, dinv, vf_ptr, vf_face, vf_K, phi):
 
 
 @kernel(inline='always')
-def _corner_rows(fa, fb, s11, s12, s22, d00, d01, d10, d11):
+def corner_rows(fa, fb, s11, s12, s22, d00, d01, d10, d11):
     """One coordinate (row (fa, fb) of F) of the corner gradients ``F S Dinv^T``:
     (g_1, g_2); corner 0 takes ``-g_1 - g_2``."""
     u0 = fa * s11 + fb * s12
@@ -129,15 +129,15 @@ def add_face_side(i, x, faces, dinv, face_area, K, vf_ptr, vf_face, vf_corner, v
         p0 = nb.uint64(base + stride * vf_entry[q, 0])
         p1 = nb.uint64(base + stride * vf_entry[q, 1])
         p2 = nb.uint64(base + stride * vf_entry[q, 2])
-        g1, g2 = _corner_rows(f00, f01, s11, s12, s22, d00, d01, d10, d11)
+        g1, g2 = corner_rows(f00, f01, s11, s12, s22, d00, d01, d10, d11)
         contrib[0, p1] += g1
         contrib[0, p2] += g2
         contrib[0, p0] -= g1 + g2
-        g1, g2 = _corner_rows(f10, f11, s11, s12, s22, d00, d01, d10, d11)
+        g1, g2 = corner_rows(f10, f11, s11, s12, s22, d00, d01, d10, d11)
         contrib[1, p1] += g1
         contrib[1, p2] += g2
         contrib[1, p0] -= g1 + g2
-        g1, g2 = _corner_rows(f20, f21, s11, s12, s22, d00, d01, d10, d11)
+        g1, g2 = corner_rows(f20, f21, s11, s12, s22, d00, d01, d10, d11)
         contrib[2, p1] += g1
         contrib[2, p2] += g2
         contrib[2, p0] -= g1 + g2
@@ -210,7 +210,7 @@ def energy_from_fields(model, coeff, epsbar_: np.ndarray, kap: np.ndarray) -> fl
 def energy(model, coeff, x: np.ndarray) -> float:
     """E_c [J] at positions x (n,3)."""
     x, eb = _fields(model, coeff, x)
-    _, kap, _ = jet_fields(model, x, 0.0, 0.0, np.zeros(len(x)), eb)
+    kap, _ = jet_energies(model, x, 0.0, 0.0, np.zeros(len(x)), eb)
     return energy_from_fields(model, coeff, eb, kap)
 
 
@@ -224,18 +224,6 @@ def gradient(model, coeff, x: np.ndarray) -> np.ndarray:
     add_face_gradient(x, f.corners, f.dinv, f.area, f.K, vf.ptr, vf.face, vf.corner,
                       model.vertices.ainv, kap, coeff.phi, g)
     return g
-
-
-@kernel(inline='always')
-def _form_matrix(i11, i12, i22):
-    """Q (3,3) with B(e, k) = e^T Q k for e, k as (11, 12, 22)."""
-    q = np.zeros((3, 3))
-    for a in range(3):
-        for b in range(3):
-            q[a, b] = bilinear(i11, i12, i22, 1.0 if a == 0 else 0.0, 1.0 if a == 1 else 0.0,
-                               1.0 if a == 2 else 0.0, 1.0 if b == 0 else 0.0,
-                               1.0 if b == 1 else 0.0, 1.0 if b == 2 else 0.0)
-    return q
 
 
 @kernel(parallel=True)
@@ -265,7 +253,9 @@ def entry_blocks(x, st_ptr, st_idx, st_w, faces, dinv, vf_ptr, vf_face, vf_K, vf
         c2 = a10 * a21 - a11 * a20
         cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         nrm = (c0 / cn, c1 / cn, c2 / cn)
-        Q = _form_matrix(ainv[i, 0], ainv[i, 1], ainv[i, 2])
+        i11 = ainv[i, 0]
+        i12 = ainv[i, 1]
+        i22 = ainv[i, 2]
         # J_e per entry: (entries, 3 strain components, 3 coordinates)
         je = np.zeros((p1 - p0, 3, 3))
         for q in range(vf_ptr[i], vf_ptr[i + 1]):
@@ -292,16 +282,23 @@ def entry_blocks(x, st_ptr, st_idx, st_w, faces, dinv, vf_ptr, vf_face, vf_K, vf
         c = dual_area[i] * phi
         for s in range(p1 - p0):
             k = p0 + s
-            jk = np.zeros((3, 3))
-            for a in range(3):
-                for r in range(3):
-                    jk[a, r] = -st_w[2 + a, k] * nrm[r]
-            if psd:
-                p = je[s] + jk
-                blk[k] = 0.5 * c * (p.T @ Q @ p)
-            else:
-                m = je[s].T @ Q @ jk
-                blk[k] = c * (m + m.T)
+            # J_k column r: -W_k,ab n_r; (J^T Q J)_rs = B(J[:, r], J[:, s])
+            w11 = -st_w[2, k]
+            w12 = -st_w[3, k]
+            w22 = -st_w[4, k]
+            for r in range(3):
+                for q in range(3):
+                    if psd:
+                        blk[k, r, q] = 0.5 * c * bilinear(
+                            i11, i12, i22, je[s, 0, r] + w11 * nrm[r], je[s, 1, r] + w12 * nrm[r],
+                            je[s, 2, r] + w22 * nrm[r], je[s, 0, q] + w11 * nrm[q],
+                            je[s, 1, q] + w12 * nrm[q], je[s, 2, q] + w22 * nrm[q])
+                    else:
+                        blk[k, r, q] = c * (
+                            bilinear(i11, i12, i22, je[s, 0, r], je[s, 1, r], je[s, 2, r],
+                                     w11 * nrm[q], w12 * nrm[q], w22 * nrm[q])
+                            + bilinear(i11, i12, i22, je[s, 0, q], je[s, 1, q], je[s, 2, q],
+                                       w11 * nrm[r], w12 * nrm[r], w22 * nrm[r]))
 
 
 @kernel(parallel=True)

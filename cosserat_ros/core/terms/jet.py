@@ -40,10 +40,13 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from numba import literally
+
 from ..compiled import REDUCTION, kernel
 from ..material import contract
 
-__all__ = ['jet_adjoint', 'vertex_pass', 'gather', 'normal_residuals', 'cross', 'phi_dot']
+__all__ = ['jet_adjoint', 'vertex_pass', 'vertex_energies', 'gather', 'normal_residuals',
+           'cross', 'phi_dot', 'jet_fields', 'jet_energies']
 
 
 @kernel(inline='always')
@@ -107,7 +110,7 @@ def weighted_offsets(ns, scratch, ch):
 
 @kernel(inline='always')
 def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area, ainv, rest_b,
-                xi, phi, e11, e12, e22, sc, ch, contrib):
+                xi, phi, e11, e12, e22, sc, ch, contrib, adjoint=True):
     """Vertex i's jet energy and its adjoint (module docstring): bending
     ``A_i xi B(kap, kap)`` with its hourglass control ``stab[i] sum_k (rho_k . n - sigma_k)^2``,
     and the curvature side of the coupling ``A_i phi B(epsbar, kap)`` for the strain average
@@ -116,7 +119,8 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
     Entries: the centre at ``pc`` (its weights at ``pw``), the others at ``pc+1 .. p1-1``
     (weights from ``pw+1``). Writes ``contrib[:, k] = dE_i/dx_j`` for every entry (3, K);
     ``sc[ch]`` (5, S) is the caller's scratch row. Returns the curvature change
-    ``(k11, k12, k22)`` and the hourglass energy ``estab``.
+    ``(k11, k12, k22)`` and the hourglass energy ``estab``; ``adjoint`` False (a
+    constant at the call) stops after them, for the energy alone.
 
     Written for the vectoriser: no array views inside the parallel loop (numba then marks
     the kernel's arrays ``noalias`` and LLVM vectorises the contiguous loops without
@@ -189,6 +193,8 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
         sc[ch, 4, s] = (2.0 * om * dd + st_w[2, kw] * g11 + st_w[3, kw] * g12
                         + st_w[4, kw] * g22)
         e += dd * dd
+    if not adjoint:
+        return k11, k12, k22, om * e
     v0, v1, v2, hs = weighted_offsets(ns, sc, ch)
     # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
     vn = v0 * n0 + v1 * n1 + v2 * n2
@@ -217,28 +223,30 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
 
 @kernel()
 def vertex_range(i0, i1, st_ptr, st_wptr, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area,
-                 ainv, rest_b, xi, phi, epsbar, sc, ch, contrib, kap, estab):
+                 ainv, rest_b, xi, phi, epsbar, sc, ch, contrib, kap, estab, adjoint):
     """:func:`jet_adjoint` for the vertices i0:i1 with scratch row ``ch`` (CSR layout,
     weights per stencil template at ``st_wptr[i]``), storing kap (n,3) and estab (n,). A
     function of its own, called once per work item of :func:`vertex_pass`: numba's
     parallel passes then see a call instead of the inlined vertex term (a shorter cold
-    compile)."""
+    compile). ``adjoint`` (a literal: one function each) False computes kap and estab
+    alone."""
+    literally(adjoint)
     for i in range(i0, i1):
         k11, k12, k22, es = jet_adjoint(
             i, st_ptr[i], st_ptr[i + 1], st_wptr[i], x, st_idx, st_w, st_uv, st_sigma, stab,
             dual_area, ainv, rest_b, xi, phi, epsbar[i, 0], epsbar[i, 1], epsbar[i, 2], sc, ch,
-            contrib)
+            contrib, adjoint)
         kap[i, 0] = k11
         kap[i, 1] = k12
         kap[i, 2] = k22
         estab[i] = es
 
 
-@kernel(parallel=True)
-def vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, contrib, kap, estab):
-    """:func:`jet_adjoint` for every vertex on the CSR stencils of ``jets``
-    (:class:`..model.Jets`), in work items of its ``scratch`` (R, 5, S) rows: contrib (3,K)
-    in CSR order, kap (n,3), estab (n,). ``epsbar`` (n,3) is read only when phi != 0."""
+@kernel(inline='always')
+def _vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, contrib, kap, estab,
+                 adjoint):
+    """:func:`vertex_range` over the work items of ``scratch`` in parallel (``adjoint``: a
+    literal; :func:`vertex_pass`, :func:`vertex_energies`)."""
     st_ptr, st_wptr, st_idx, st_w, st_uv, st_sigma = (jets.ptr, jets.wptr, jets.idx, jets.tw,
                                                       jets.tuv, jets.sigma)
     dual_area, ainv, rest_b = vertices.dual_area, vertices.ainv, vertices.rest_b
@@ -248,7 +256,23 @@ def vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, contrib, kap,
     for c in nb.prange(nch):
         vertex_range(np.int64(c) * chunk, min(n, (np.int64(c) + 1) * chunk), st_ptr, st_wptr, x,
                      st_idx, st_w, st_uv, st_sigma, stab, dual_area, ainv, rest_b, xi, phi,
-                     epsbar, scratch, np.int64(c), contrib, kap, estab)
+                     epsbar, scratch, np.int64(c), contrib, kap, estab, adjoint)
+
+
+@kernel(parallel=True)
+def vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, contrib, kap, estab):
+    """:func:`jet_adjoint` for every vertex on the CSR stencils of ``jets``
+    (:class:`..model.Jets`), in work items of its ``scratch`` (R, 5, S) rows: contrib (3,K)
+    in CSR order, kap (n,3), estab (n,). ``epsbar`` (n,3) is read only when phi != 0."""
+    _vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, contrib, kap, estab, True)
+
+
+@kernel(parallel=True)
+def vertex_energies(x, jets, vertices, stab, xi, phi, epsbar, scratch, kap, estab):
+    """:func:`vertex_pass` without the adjoint: kap (n,3) and estab (n,) alone, for the
+    energy (``contrib`` is not written: scratch stands in for it)."""
+    _vertex_pass(x, jets, vertices, stab, xi, phi, epsbar, scratch, scratch[0], kap, estab,
+                 False)
 
 
 @kernel(parallel=True)
@@ -310,6 +334,17 @@ def jet_fields(model, x: np.ndarray, xi: float, phi: float, stab: np.ndarray,
     vertex_pass(np.ascontiguousarray(x, dtype=np.float64), j, model.vertices, stab, xi, phi,
                 epsbar, model_scratch(model), contrib, kap, estab)
     return contrib, kap, estab
+
+
+def jet_energies(model, x: np.ndarray, xi: float, phi: float, stab: np.ndarray,
+                 epsbar: np.ndarray):
+    """Run :func:`vertex_energies` on fresh arrays: (kap (n,3), estab (n,))."""
+    n = len(x)
+    kap = np.zeros((n, 3))
+    estab = np.zeros(n)
+    vertex_energies(np.ascontiguousarray(x, dtype=np.float64), model.jets, model.vertices,
+                    stab, xi, phi, epsbar, model_scratch(model), kap, estab)
+    return kap, estab
 
 
 def model_scratch(model, rows: int = 0) -> np.ndarray:
