@@ -74,6 +74,58 @@ def test_warmup_process_compiles_what_the_node_then_loads(tmp_path, plan, materi
     assert warm.stdout.strip() == 'loaded', warm.stderr
 
 
+_ORPHAN = """
+import sys, time
+from cosserat_ros.core import warmup
+child = warmup.start(False, True)
+print(child.pid, warmup._index_path() + '.warmup', flush=True)
+time.sleep(600)
+"""
+
+
+def _alive(pid):
+    try:
+        with open(f'/proc/{pid}/status') as fh:
+            return 'State:\tZ' not in fh.read()
+    except FileNotFoundError:
+        return False
+
+
+def _catches_sigterm(pid):
+    with open(f'/proc/{pid}/status') as fh:
+        caught = next(int(line.split()[1], 16) for line in fh if line.startswith('SigCgt'))
+    return bool(caught & (1 << (15 - 1)))
+
+
+def test_warmup_process_ends_with_the_process_that_started_it(tmp_path):
+    # a node killed during its cold start (here SIGKILL: no handler of its own runs)
+    # leaves no compiler behind on a core, and no lock that would stop the next start's
+    # warm-up for LOCK_SECONDS. The parent is killed once the child compiles, long before
+    # its compile could end by itself
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
+    parent = subprocess.Popen([sys.executable, '-c', _ORPHAN], env=env, cwd=tmp_path,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        pid, lock = parent.stdout.readline().split()
+        pid = int(pid)
+        assert _alive(pid) and os.path.exists(lock)
+        # the child is past its imports and compiling: its SIGTERM handler is set
+        end = time.monotonic() + 120
+        while not _catches_sigterm(pid) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert _catches_sigterm(pid)
+    finally:
+        parent.kill()
+        parent.wait()
+    end = time.monotonic() + 30
+    while _alive(pid) and time.monotonic() < end:
+        time.sleep(0.05)
+    assert not _alive(pid)
+    assert not os.path.exists(lock)
+    # and it was stopped, not done: the energy kernel it compiles first is not in the cache
+    assert not os.path.exists(lock[:-len('.warmup')])
+
+
 def test_warmup_lock_is_taken_once_and_a_stale_one_replaced(tmp_path):
     from cosserat_ros.core import warmup
     lock = str(tmp_path / 'x.nbi.warmup')

@@ -1,8 +1,9 @@
 """Forces, integration and energies of the Cosserat surface against theory.
 
-Plate and beam studies use the shared systems of ``cosserat_ros.core.scenarios`` at 20 and 40
-segments; ``make validate`` runs them up to 80 and writes docs/validation.md.
+Plate and beam studies use the shared systems of ``cosserat_ros.core.scenarios`` at 20, 28
+and 40 segments; ``make validate`` runs them up to 80 and writes docs/validation.md.
 """
+import functools
 import warnings
 
 import numpy as np
@@ -107,9 +108,17 @@ def test_no_hourglass_modes(mode):
     assert np.abs(sim.positions - mesh.vertices).max() < 0.05 * delta
 
 
+@functools.lru_cache(maxsize=None)
+def _plate(study, n, pattern='regular', support='simple'):
+    # each plate run once per session: the order fit and the bound tests share them
+    if study == 'deflection':
+        return sc.plate_deflection(n, pattern, support)
+    return sc.plate_frequency(n, pattern)
+
+
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_simply_supported_plate_deflection(pattern):
-    r20, r40 = (sc.plate_deflection(n, pattern) for n in (20, 40))
+    r20, r40 = (_plate('deflection', n, pattern) for n in (20, 40))
     assert abs(r40['error']) < 0.03, r40
     assert abs(r40['error']) < abs(r20['error'])
     assert r40['residual_speed'] < 1e-3 * r40['w']          # relaxed to a static state
@@ -117,9 +126,23 @@ def test_simply_supported_plate_deflection(pattern):
 
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_simply_supported_plate_frequency(pattern):
-    r20, r40 = (sc.plate_frequency(n, pattern) for n in (20, 40))
+    r20, r40 = (_plate('frequency', n, pattern) for n in (20, 40))
     assert abs(r40['error']) < 0.03, r40
     assert abs(r40['error']) < abs(r20['error'])
+
+
+@pytest.mark.parametrize('study', ['deflection', 'frequency'])
+def test_plate_convergence_order(study):
+    """The fitted order of the simply supported plate on the regular grid, as scikit-fem's
+    tests fit rates: the slope of log|error| against log h over N = 20, 28, 40 segments.
+    Linear membrane triangles and cubic jets make a second-order scheme; over this
+    pre-asymptotic range the slope is 1.8 (docs/validation.md, up to N = 80), and the
+    bound 1.5 separates that from a first-order error. (The irregular grid's random
+    stencils scatter too much over three sizes to fit an order; make validate reports it.)"""
+    ns = np.array([20, 28, 40])
+    errors = [abs(_plate(study, int(n))['error']) for n in ns]
+    order = np.polyfit(np.log(1.0 / ns), np.log(errors), 1)[0]
+    assert 1.5 < order < 2.5, (errors, order)
 
 
 def test_clamped_plate_deflection():

@@ -5,7 +5,7 @@
 * ``error_model='numpy'``: a division by zero gives inf/NaN as in numpy instead of raising
   from inside a parallel kernel. The step's divergence check (non-finite or impossible
   speed) catches it and restores the state. Dropping the Python-semantics checks also lets
-  LLVM schedule the inner loops freely: the vertex pass runs ~1.5x faster.
+  LLVM schedule the inner loops freely (a much faster vertex pass).
 * ``fastmath={'contract'}`` (:data:`STRICT`): LLVM may fuse ``a * b + c`` into one FMA.
   This changes rounding only; none of the flags that assume no NaN or infinity (``nnan``,
   ``ninf``) is set, so the NaN checks stay valid, and summation order is kept.
@@ -16,8 +16,8 @@
 
 Indices in the hot loops are cast to ``nb.uint64`` before they index an array (and loop
 ranges over index arrays run over unsigned bounds): through a signed index numba adds its
-negative-index wrap-around to every load and store, four integer instructions that made
-the gather of the step ~25% slower (docs/performance.md). Mixing uint64 with int64 in
+negative-index wrap-around to every load and store, four integer instructions that slow
+the gather of the step (docs/performance.md). Mixing uint64 with int64 in
 arithmetic gives a float in numba, so the casts stay next to the loads.
 
 Stale caches

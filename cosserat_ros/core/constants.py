@@ -13,7 +13,7 @@ JET_RCOND_MIN = 1e-6
 JET_MAX_RINGS = 4
 #: The least-squares jet is cubic (geometry.NJET = 9 coefficients): second derivatives are
 #: O(h^2) on any stencil, boundary included (a quadratic jet is only O(h) on one-sided or
-#: irregular stencils). The vertex kernel of forces.py is written for exactly nine.
+#: irregular stencils). The fast vertex pass (``fast/lanes.py``) is written for exactly nine.
 
 #: Safety factor applied to the linear stability limit 2/omega_max in `critical_dt`. Near
 #: omega dt = 2 the explicit update lets strained states pump energy into the highest modes:
@@ -27,7 +27,7 @@ CRITICAL_DT_SAFETY = 0.8
 DIVERGENCE_SPEED_FACTOR = 50.0
 
 #: Hourglass control of the bending jet: weight s of the least-squares residual energy
-#: s xi A_i / h_i^4 sum_k omega_k |rho_k|^2 (forces.py). The residual of the cubic fit is
+#: s xi A_i / h_i^4 sum_k omega_k |rho_k|^2 (``core/terms/jet.py``). The residual of the cubic fit is
 #: O(h^4) for smooth fields, so the term vanishes with refinement, while the oscillating
 #: patterns that a least-squares fit cannot see get a bending-like stiffness. Without it the
 #: simply supported plate on irregular meshes stalls near +3% (20/40/80: 4.1, 2.9, ...);
@@ -39,14 +39,13 @@ JET_STABILIZATION = 1000.0
 #: a 20x20 sheet.
 VERTEX_CHUNK = 16
 
-#: Vertices per tile of the step (integrator.vertex_parts): each thread runs the vertex pass
+#: Vertices per tile of the step (``fast.step.vertex_parts``): each thread runs the vertex pass
 #: over its part of the mesh tile by tile and gathers and updates the vertices a tile
-#: completes right after it, while their gradients are still in the core's cache. Paired
-#: A/B on a 2-core AMD EPYC (32 MB L3): at N = 160 tiles of 256 vertices ran the step in
-#: 0.72x the time of one tile per part, 64-128 the same within noise, 32 slower again.
+#: completes right after it, while their gradients are still in the core's cache (the
+#: size chosen by paired A/B runs at N = 160: docs/performance.md).
 TILE_VERTICES = 256
 
 #: Meshes with fewer vertices gather and update in a pass of their own after the vertex pass
-#: (the step of a small mesh is in cache anyway; fused was ~3% slower at N = 20 and 40,
-#: even at N = 80 and ~17% faster at 160).
+#: (the step of a small mesh is in cache anyway; the fused step pays only once the state
+#: leaves the cache: docs/performance.md).
 FUSE_MIN_VERTICES = 4096

@@ -18,7 +18,9 @@ This module imports no ROS package.
 """
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -76,7 +78,9 @@ def start(tiled: bool = False, coupled: bool = True) -> Optional[subprocess.Pope
     has a coupling (phi != 0). Returns the process (or None). It runs the package this process imported (its parent directory as the working
     directory, which ``-m`` puts first on the path), with the same environment (so the same
     ``NUMBA_CACHE_DIR``), and its output goes nowhere: a caller that reads this process's
-    pipes must not wait for it."""
+    pipes must not wait for it. It ends with this process (:func:`_end_with_parent`): a
+    node stopped during its cold start leaves no compiler behind on a core (one did, and
+    the next node's spin-barrier step on that core ran 50x slower)."""
     if kernels_cached():
         return None
     lock = _index_path() + '.warmup'
@@ -88,24 +92,44 @@ def start(tiled: bool = False, coupled: bool = True) -> Optional[subprocess.Pope
         return None
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     try:
-        return subprocess.Popen([sys.executable, '-m', 'cosserat_ros.core.warmup', lock]
-                                + (['tiled'] if tiled else []) + (['coupled'] if coupled
-                                                                    else []),
-                                cwd=root, stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        args = ([sys.executable, '-m', 'cosserat_ros.core.warmup', lock]
+                + (['tiled'] if tiled else []) + (['coupled'] if coupled else [])
+                + ['--parent', str(os.getpid())])
+        return subprocess.Popen(args, cwd=root, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                preexec_fn=_end_with_parent)
     except OSError:
         os.remove(lock)
         return None
 
 
-def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True) -> int:
+def _end_with_parent() -> None:
+    """In the child, before it runs Python: ask the kernel for SIGTERM when the parent
+    ends (Linux ``prctl(PR_SET_PDEATHSIG)``; elsewhere nothing), and hold SIGTERM back
+    (the mask survives ``exec``) until :func:`main` has its handler, which removes the
+    lock."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
+         parent: Optional[int] = None) -> int:
     """Compile into the cache, with the argument types of the node's start-up (a small
     sheet has the same types as any other), what the node needs besides its step: the
     energy report, and for the tiled step the critical dt's force (the two-pass vertex
     pass, which the tiled step does not share); where the one-region step does not apply
     (more threads than CPUs) the two-pass step's update pass, which its compile would
-    otherwise reach last. Then remove the lock file ``lock`` that :func:`start` took."""
+    otherwise reach last. Then remove the lock file ``lock`` that :func:`start` took; also
+    when SIGTERM ends it (its parent ended), so the next start can warm up again.
+    ``parent``: the pid of the process that started it; gone already: nothing to do."""
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     try:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
+        if parent is not None and os.getppid() != parent:
+            return 1
         _compile(tiled, coupled)
     finally:
         if lock is not None and os.path.exists(lock):
@@ -138,5 +162,11 @@ def _compile(tiled: bool, coupled: bool):
 
 
 if __name__ == '__main__':
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else None, 'tiled' in sys.argv[2:],
-                  'coupled' in sys.argv[2:]))
+    _args = sys.argv[1:]
+    _parent = None
+    if '--parent' in _args:
+        _k = _args.index('--parent')
+        _parent = int(_args[_k + 1])
+        del _args[_k:_k + 2]
+    sys.exit(main(_args[0] if _args else None, 'tiled' in _args[1:], 'coupled' in _args[1:],
+                  _parent))

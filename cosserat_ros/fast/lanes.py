@@ -8,8 +8,8 @@ scalar functions themselves. ``test/test_fast.py`` checks both against the terms
 
 Why: the vertex pass works on short stencils (about 18 entries); vectorised along the
 stencil (what LLVM does by itself) each vertex pays for loop remainders, horizontal sums
-and its per-vertex arithmetic on one lane. Across vertices the step ran 0.75x the time
-(0.20 -> 0.15 ms at N = 40; docs/performance.md).
+and its per-vertex arithmetic on one lane; across vertices none of that is paid
+(docs/performance.md).
 
 Layout (:func:`lane_layout`): the groups' stencil entries are interleaved (entry s of lane
 l at ``g_ptr[g] + 4 s + l``), so the four vertices' weights, residuals and gradients move
@@ -313,8 +313,8 @@ def vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, sta
     on the four vertices in one vector; the coupling's strain average and strain side from
     the stencil offsets of pass 1 (:func:`spokes`, :func:`_coupling_group`). ``coupled``
     (a literal at every call: ``fast/step.py`` compiles a step for phi = 0 and one for
-    phi != 0) keeps the coupling's code out of the step without it, which otherwise ran
-    the vertex pass 1.2-1.7x slower even with the coupling skipped at run time.
+    phi != 0) keeps the coupling's code out of the step without it, which otherwise
+    slows the vertex pass even with the coupling skipped at run time.
 
     The group's stencils have the same size, and their entries are interleaved (lane
     order, :func:`lane_layout`): entry s of lane l sits at ``g_ptr[g] + 4 s + l``, s = 0
@@ -446,9 +446,9 @@ def vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, sta
     # pass 3: residuals along the normal and h_k = dE_i/d(dn_k)
     om = vset(stab[i0], stab[i1], stab[i2], stab[i3])
     # e, the residual's sum of squares, is not stored here (the energy report takes it
-    # from core/terms/jet.py), and LLVM drops it in the end. It stays because with it in the loop
-    # LLVM compiles the loop into code that ran the step 0.87-0.91x the time of the loop
-    # without it (paired, N = 20 / 40).
+    # from core/terms/jet.py), and LLVM drops it in the end. It stays because with it in
+    # the loop LLVM schedules the loop into faster code than without it (paired A/B,
+    # docs/performance.md).
     e = splat(0.0)
     for s in range(ns):
         kw = q0 + 4 * s
@@ -531,18 +531,18 @@ def vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, 
     ``dinv``, ``face_area``, ``K_face`` and the vertex-face arrays).
 
     ``forceinline`` (LLVM ``alwaysinline``): inlined into the parallel loop's body, it
-    gets that body's ``noalias`` arrays (a plain call was 5-10% slower). ``coupled`` is
+    gets that body's ``noalias`` arrays (a plain call is slower). ``coupled`` is
     made a literal (``numba.literally``): each value compiles a function of its own,
-    optimised without the other's code (one function with a run-time flag ran the vertex
-    pass 1.07x slower at phi = 0). The arrays come one by one, not in their named tuples:
-    tuples carried into the parallel loop's body added ~12 us to every pass.
+    optimised without the other's code (one function with a run-time flag is slower at
+    phi = 0). The arrays come one by one, not in their named tuples: tuples carried into
+    the parallel loop's body add a fixed cost to every pass (docs/performance.md).
     """
     literally(coupled)
     # the chunk sizes follow from the caller's nch (not from a module constant, which
     # numba's cache would freeze into the compiled code); chunk_of_vertex is this split in
-    # numpy. (Spreading the groups and singles evenly over the chunks ran the pass
-    # 3-9% slower at N = 20 / 40: the few singles then leave the first chunks, i.e. the
-    # calling thread, which starts before the woken worker.)
+    # numpy. (Spreading the groups and singles evenly over the chunks was slower: the few
+    # singles then leave the first chunks, i.e. the calling thread, which starts before
+    # the woken worker.)
     ng = g_vert.shape[0]
     nsv = s_vert.shape[0]
     for q in range(nb.uint64(fc_ptr[ch]), nb.uint64(fc_ptr[ch + 1])):

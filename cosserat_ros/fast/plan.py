@@ -53,8 +53,8 @@ class Plan(NamedTuple):
 
 def build_plan(model, lanes, nch: int, tile_vertices: int, parts: int, tiled: bool) -> Plan:
     """The plan for ``nch`` chunks, tiles of ``tile_vertices``, ``parts`` parts
-    (``tiled``; otherwise the two-pass step's: equal runs of faces per chunk, which
-    measured 2-6% faster on small meshes, and every gradient in its own slot)."""
+    (``tiled``; otherwise the two-pass step's: equal runs of faces per chunk, faster on
+    small meshes, and every gradient in its own slot)."""
     mesh, jet = model.mesh, model.jet
     n, faces = mesh.n_vertices, mesh.faces
     chunk = chunk_of_vertex(n, nch, lanes.g_vert, lanes.s_vert)

@@ -6,7 +6,7 @@ sums and its per-vertex arithmetic (normal, stresses) on one lane. numba does no
 across vertices by itself (it unrolls a constant lane loop before LLVM's loop vectoriser
 can see it, and SLP vectorisation is off). These few intrinsics let a kernel say it
 directly: one ``f64x4`` holds the same quantity of four vertices, and every operation on it
-is one AVX instruction. The vertex pass (forces.py, ``_vertex_lanes``) is written with
+is one AVX instruction. The vertex pass (``lanes.vertex_lanes``) is written with
 them; see ``docs/performance.md``.
 
 The type lowers to LLVM's ``<4 x double>``; values stay in registers. Operations:

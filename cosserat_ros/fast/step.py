@@ -57,8 +57,8 @@ class Work(NamedTuple):
 def _vertex_pass(x, lanes, plan, faces, vf, vertices, coeff, work, coupled):
     """Pass 1 over all chunks in parallel (:func:`.lanes.vertex_chunk`), shared between
     the threads (:mod:`.workshare`, state ``work.share``): the same chunks, the same
-    results, whichever thread runs them. Paired against the static split of
-    ``prange(nch)`` the step ran 0.87 / 0.97x at N = 40 / 20 (docs/performance.md).
+    results, whichever thread runs them (against the static split of ``prange(nch)``:
+    docs/performance.md).
     ``coupled``: a literal, one kernel each (:func:`vertex_pass`,
     :func:`vertex_pass_coupled`)."""
     g_vert, g_ptr, s_vert, s_ptr, s_wptr = (lanes.g_vert, lanes.g_ptr, lanes.s_vert,
@@ -228,7 +228,7 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
     the others are in the other pass. Every thread then reads the chunks' bad counts, so
     that all leave at the same step, and one adds their work and dissipation to ``acc``
     in chunk order. The same numbers as the two passes, to the bit, without opening two
-    parallel regions per step (~1.6 us each here, against ~0.14 us per barrier). Returns
+    parallel regions per step (each costs about ten barriers). Returns
     the steps done: fewer than ``nsteps`` when one went bad.
 
     The barrier waits for every iteration, so all ``nthr`` must run at once: the solver

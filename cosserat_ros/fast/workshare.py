@@ -2,11 +2,10 @@
 items first, then it takes the others' remaining items from their far ends.
 
 Why: numba splits a ``prange`` statically, one equal run of iterations per thread, so a pass
-lasts as long as its slowest thread. On the project's shared 2-core host the worker thread
-ran the same chunks of the vertex pass 1.3-1.4x slower than the calling thread (measured
-with the cycle counter per chunk; one thread alone runs both halves equally fast), and the
-pass waited for it. numba's own dynamic schedule (``set_parallel_chunksize``) hands out every chunk
-through the threading layer and made the step 1.7-3.6x slower (docs/performance.md).
+lasts as long as its slowest thread, and on a shared host the worker thread runs the same
+chunks slower than the calling thread. numba's own dynamic schedule
+(``set_parallel_chunksize``) hands out every chunk through the threading layer, which costs
+more than it balances (both measured: docs/performance.md).
 
 Here a pass over ``n`` items runs ``prange(T)`` over T ranges (:func:`split`: T equal runs,
 as the static split would give each thread). ``state[0]`` holds T, which the caller sets
@@ -132,8 +131,8 @@ def arrive(sync, k, n):
     """Barrier of ``n`` threads inside one parallel region: the k-th time (from 1) a thread
     calls it, it returns once all n have called it k times. ``sync[0]``, zero before the
     region, counts the arrivals (one compare-and-swap each) and never goes back, so no
-    sense flag is needed. It costs ~0.14 us here, against ~1.6 us for opening a parallel
-    region. Every one of the n threads must be running at once: the caller's ``prange``
+    sense flag is needed. It is an order of magnitude cheaper than opening a parallel
+    region (docs/performance.md). Every one of the n threads must be running at once: the caller's ``prange``
     has exactly as many iterations as the threads numba runs, one per thread, each on a
     CPU of its own (:func:`usable_cpus`)."""
     while True:
@@ -149,9 +148,9 @@ def arrive(sync, k, n):
 def usable_cpus() -> int:
     """The CPUs this process can run on at once (read once): its affinity mask, capped by
     a cgroup v2 CPU quota (``/sys/fs/cgroup/cpu.max``, rounded down). A spin barrier
-    (:func:`arrive`) is only for threads that each have a CPU of their own: with four
-    threads on two CPUs the one-region step took 8.1 ms per step at N = 20 / 40, against
-    0.21 / 0.44 ms for a parallel region per pass, whose OpenMP barrier goes to sleep."""
+    (:func:`arrive`) is only for threads that each have a CPU of their own: with more
+    threads than CPUs a spinning thread holds the CPU that the thread it waits for needs,
+    where a parallel region's OpenMP barrier goes to sleep."""
     try:
         n = len(os.sched_getaffinity(0))
     except AttributeError:                      # not on Linux
