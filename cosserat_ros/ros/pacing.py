@@ -14,9 +14,10 @@ Per tick:
   smoothed step cost says fits; the rest is sized on that batch's own cost, measured in
   this tick, so a host that slows down between ticks does not push the tick past its
   period;
-* :meth:`Pacer.carry`: what the rounding to whole steps left is carried to the next tick
-  (a period of 199.6 steps, rounded alone, gains 0.2%); a tick that could not keep up
-  drops its debt instead of piling it up.
+* :meth:`Pacer.carry`: what the tick still owes is carried to the next: the rounding to
+  whole steps (a period of 199.6 steps, rounded alone, gains 0.2%) and what a tick that
+  could not keep up fell short by, at most one period of it, so a host that is slow for
+  a moment catches up and one that is always too slow does not pile up a debt.
 """
 from __future__ import annotations
 
@@ -56,9 +57,10 @@ class Pacer:
         return max(1, int(round(self._owed / dt)))
 
     def carry(self, done: int, wanted: int, dt: float, now: float) -> None:
-        """After a tick that took ``done`` of its ``wanted`` steps."""
+        """After a tick that took ``done`` of its ``wanted`` steps: owe the rest, at most
+        one period."""
         self.lagging = done < wanted
-        self.owed = 0.0 if self.lagging else self._owed - done * dt
+        self.owed = min(self._owed - done * dt, self.period)
         self.last_tick = now
 
     def advance(self, step: Callable[[int], bool], wanted: int,
