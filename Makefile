@@ -39,7 +39,7 @@ run: $(PKG_STAMP)
 	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS)
 
 test: $(PKG_STAMP)
-	$(ENV) $(VENV)/bin/pytest -q test
+	$(ENV) $(VENV)/bin/pytest -q --durations=20 test
 
 validate: $(PKG_STAMP)
 	$(ENV) $(PY) -m cosserat_ros.tools.validate --out docs
