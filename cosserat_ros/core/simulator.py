@@ -36,6 +36,7 @@ from .geometry import CURVATURE_ESTIMATORS, Geometry
 from .material import Material, material_tensor
 from .mesh import ClothMesh
 from .model import Model
+from .obstacles import ObstacleSet
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.stability import critical_dt as _critical_dt, max_eigenvalue as _max_eigenvalue
 from .state import Control, State
@@ -108,6 +109,7 @@ class ClothSimulator:
         n = mesh.n_vertices
         self.state = State.at_rest(mesh.vertices)
         self.control = Control.empty(n)
+        self._obstacles = ObstacleSet()
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
         self._scratch = model_scratch(self.model)
@@ -276,8 +278,27 @@ class ClothSimulator:
         if n == 0:
             return
         backup = self.state.copy()
-        done = self.solver.step(n, self.state, self.control, self.coefficients, self._dt,
-                                self._vmax ** 2)
+        cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
+        if cap == 0:
+            done = self.solver.step(n, self.state, self.control, self.coefficients,
+                                    self._dt, self._vmax ** 2)
+        else:
+            # moving obstacles: a pose per call of the compiled step, each call short
+            # enough that they move at most a quarter of the thickness (obstacles.py)
+            poses = self._obstacles.poses()
+            done = 0
+            while done < n:
+                k = min(cap, n - done)
+                got = self.solver.step(k, self.state, self.control, self.coefficients,
+                                       self._dt, self._vmax ** 2)
+                done += got
+                if got < k:
+                    break
+                self._obstacles.advance(k * self._dt)
+                self._sync_obstacles()
+            if done < n:
+                self._obstacles.restore(poses)
+                self._sync_obstacles()
         if done < n:
             self.state.assign(backup)
             crit = self.critical_dt()
@@ -291,6 +312,86 @@ class ClothSimulator:
                                      hint)
         self._steps += n
         self._time += n * self._dt
+
+    # ------------------------------------------------------------------ obstacles
+    def add_obstacle(self, shape: str, friction=0.5, name: Optional[str] = None,
+                     **geometry) -> int:
+        """Add a rigid obstacle; returns its id. Shapes and their geometry [m]:
+
+        * ``'plane'``: ``point``, ``normal`` (the solid side is opposite the normal; the
+          ground by default: point (0, 0, 0), normal (0, 0, 1));
+        * ``'sphere'``: ``center``, ``radius``;
+        * ``'box'``: ``center``, ``half_extents``, ``orientation`` (quaternion x, y, z, w);
+        * ``'capsule'``, ``'cylinder'``: ``center``, ``radius``, ``half_length``,
+          ``orientation`` (axis = local z);
+        * ``'mesh'``: ``vertices`` and ``faces``, or ``file`` (OBJ / STL / PLY, loaded by
+          trimesh), a closed mesh; ``center``, ``orientation`` place it, ``spacing`` is
+          its distance field's grid step (default 1 cm).
+
+        ``friction``: mu, or (mu_static, mu_kinetic) with kinetic <= static (default 0.5
+        both). ``name``: unique, default ``<shape>_<id>``. Raises ``ValueError`` with the
+        reason for a bad shape or geometry. Physics: :mod:`cosserat_ros.core.contact`.
+        """
+        oid = self._obstacles.add(shape, friction=friction, name=name, **geometry)
+        self._sync_obstacles()
+        return oid
+
+    def set_obstacle_pose(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
+                          linear_velocity=(0.0, 0.0, 0.0),
+                          angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Place obstacle ``id`` at ``position`` [m] with ``orientation`` (quaternion x, y,
+        z, w; for a plane, the rotation of its normal from +z) and let it move on with
+        the given velocities [m/s, rad/s, world frame] until the next call."""
+        self._obstacles.set_pose(id, position, orientation, linear_velocity,
+                                 angular_velocity)
+        self._sync_obstacles()
+
+    def remove_obstacle(self, id) -> None:
+        """Remove obstacle ``id`` (``ValueError`` if there is none)."""
+        self._obstacles.remove(id)
+        self._sync_obstacles()
+
+    @property
+    def obstacles(self) -> Dict[int, dict]:
+        """{id: description} of the obstacles: name, shape, geometry, pose, velocities,
+        friction (a copy; change them through the methods)."""
+        return self._obstacles.describe()
+
+    def obstacle_mesh(self, id):
+        """(vertices, faces) of a mesh obstacle in its own frame, else None."""
+        return self._obstacles.mesh_of(id)
+
+    def contact_forces(self) -> Dict[int, tuple]:
+        """{id: (force (3) [N], torque (3) [N m] about the obstacle's position)}: what the
+        cloth exerted on each obstacle over the last step (at rest on the ground: its
+        weight)."""
+        return self._obstacles.forces(self.state.x, self.control.contact)
+
+    def contact_state(self) -> Dict[str, float]:
+        """Contact counts and depth of the last step: ``contacts`` (vertices in contact),
+        ``deepest`` [m] (how far the deepest vertex was inside the contact layer at the
+        start of its step, >= 0)."""
+        c = self.control.contact
+        active = c[:, 3] >= 0
+        gap = c[:, 4]
+        deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
+        return {'contacts': int(active.sum()), 'deepest': deepest}
+
+    @property
+    def contact_thickness(self) -> float:
+        """Distance [m] the cloth keeps from every obstacle surface (default 2 mm)."""
+        return float(self.control.contact_params[0])
+
+    @contact_thickness.setter
+    def contact_thickness(self, value: float):
+        self.control.contact_params[0] = self._check_positive(value, 'contact_thickness')
+
+    def _sync_obstacles(self) -> None:
+        o = self._obstacles
+        self.control = self.control.with_obstacles(o.table, o.meta, o.data)
+        if not len(o):
+            self.control.contact[:, :3] = 0.0
+            self.control.contact[:, 3] = -1.0
 
     def internal_forces(self) -> np.ndarray:
         """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""

@@ -15,6 +15,13 @@ field             shape / unit      meaning
 ``Control.f_applied`` (n,3) [N]     nodal forces plus the force field ``m_i F``
 ``Control.gravity`` (3,) [m/s^2]    gravitational acceleration g
 ``Control.pinned`` (n,) bool        vertices held at their position with zero velocity
+``Control.obstacles`` (k, W)        rigid obstacles, one row each (:mod:`.contact`)
+``Control.sdf_meta`` (m, 8)         the mesh obstacles' distance grids: offset, shape,
+                                    origin, spacing (:mod:`.contact`)
+``Control.sdf_data`` (s,) [m]       their samples
+``Control.contact_params`` (1,)     contact thickness [m]
+``Control.contact`` (n, 5)          written by the step: each vertex's contact force [N]
+                                    (3), obstacle row (-1: none), gap to the layer [m]
 ================  ================  ========================================================
 """
 from __future__ import annotations
@@ -53,7 +60,23 @@ class Control(NamedTuple):
     f_applied: np.ndarray
     gravity: np.ndarray
     pinned: np.ndarray
+    obstacles: np.ndarray
+    sdf_meta: np.ndarray
+    sdf_data: np.ndarray
+    contact_params: np.ndarray
+    contact: np.ndarray
 
     @classmethod
-    def empty(cls, n: int) -> 'Control':
-        return cls(np.zeros((n, 3)), np.zeros(3), np.zeros(n, dtype=bool))
+    def empty(cls, n: int, thickness: float = 2e-3) -> 'Control':
+        from .contact import C_WIDTH, WIDTH
+        contact = np.zeros((n, C_WIDTH))
+        contact[:, 3] = -1.0
+        return cls(np.zeros((n, 3)), np.zeros(3), np.zeros(n, dtype=bool),
+                   np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
+                   np.array([float(thickness)]), contact)
+
+    def with_obstacles(self, obstacles: np.ndarray, sdf_meta: np.ndarray,
+                       sdf_data: np.ndarray) -> 'Control':
+        """The same controls with another obstacle table (the arrays of the rest are
+        shared)."""
+        return self._replace(obstacles=obstacles, sdf_meta=sdf_meta, sdf_data=sdf_data)

@@ -32,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from ..core.compiled import kernel
-from ..core.solvers.update import advance_vertex
+from ..core.solvers.update import advance_vertex, contact_list, contact_range
 from .lanes import vertex_chunk
 from .workshare import arrive, claim, split
 
@@ -155,6 +155,11 @@ def _update_chunk(c, size, vf_ptr, vf_row, tr_ptr, tr_slot, frow, contrib, x, v,
         work += w
         diss += d
         bad += b
+    if control.obstacles.shape[0] > 0:
+        w, d = contact_range(c * size, min(x.shape[0], (c + 1) * size), x, v, control,
+                             coeff, dt)
+        work += w
+        diss += d
     part[c, 0] = work
     part[c, 1] = diss
     part[c, 2] = bad
@@ -346,6 +351,10 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contr
         w += dw
         d += dd
         b += db
+    if control.obstacles.shape[0] > 0:
+        dw, dd = contact_list(gl_vert, q0, q1, x, v, control, coeff, dt)
+        w += dw
+        d += dd
     return w, d, b
 
 

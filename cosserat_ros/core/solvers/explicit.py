@@ -26,7 +26,7 @@ from ..compiled import kernel
 from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
 from ..terms import covariant, TERMS
 from ..state import Control, State
-from .update import advance_vertex
+from .update import advance_vertex, contact_range
 
 __all__ = ['ExplicitSolver', 'reference_step', 'DIVERGENCE_METHODS', 'steps_tiled']
 
@@ -58,6 +58,11 @@ def advance_all(x, v, force, control, coeff, dt, vmax2, part, acc):
             w += dw
             d += dd
             b += db
+        if control.obstacles.shape[0] > 0:
+            dw, dd = contact_range(c * size, min(n, (c + 1) * size), x, v, control, coeff,
+                                   dt)
+            w += dw
+            d += dd
         part[c, 0] = w
         part[c, 1] = d
         part[c, 2] = b

@@ -1,0 +1,376 @@
+"""Contact and Coulomb friction of the cloth's vertices with rigid obstacles.
+
+Obstacles are kinematic: the user sets their pose and velocity (a table, a robot link);
+the cloth pushes back on nothing but reports the force it exerts on each.
+
+Geometry
+--------
+Every obstacle is a signed distance ``d(x)`` with outward unit normal ``n(x) = grad d``,
+evaluated in the obstacle's frame ``p = R^T (x - c)`` (``c`` its position, ``R`` its
+orientation): the plane ``d = p_z`` (the half space below local z is solid), the sphere
+``|p| - r``, the box (half extents ``h``) ``|max(q, 0)| + min(max_k q_k, 0)`` with
+``q = |p| - h``, the capsule (axis local z, half length ``l``) ``|p - clamp(p_z, -l, l)
+e_z| - r``, the cylinder ``|max(w, 0)| + min(max(w_1, w_2), 0)`` with ``w = (|p_xy| - r,
+|p_z| - l)``, and a triangle mesh as a signed distance field sampled on a grid in its own
+frame and interpolated trilinearly (:func:`mesh_distance_field`). The cloth keeps a
+contact thickness ``th`` from every surface: a vertex is in contact when it would come
+closer than ``th``.
+
+Response: a velocity-level Coulomb law (the update of Bridson, Fedkiw and Anderson 2002,
+"Robust treatment of collisions, contact and friction for cloth animation", Sec. 7.2, on
+one vertex at a time)
+-------------------------------------------------------------------------------------------
+After the explicit update has given a vertex its new velocity ``v`` (``core/solvers/
+update.py``), for each obstacle, with ``d`` and ``n`` at the vertex's old position ``x``
+and the obstacle's velocity at that point ``v_o = v_lin + w x (x - c)``::
+
+    u    = v - v_o                       relative velocity
+    u_min = -(d - th) / dt  if d > th    the approach that ends the step on the layer
+            0               otherwise    (already in the layer: no approach at all)
+    if u . n < u_min:                    contact
+        j  = u_min - u . n               normal velocity change (> 0, inelastic)
+        u += j n
+        u_t = u - (u . n) n
+        |u_t| <= mu_s j:  u_t -> 0       stick (static friction)
+        else:             u_t -> u_t (1 - mu_k j / |u_t|)     kinetic friction
+    v = v_o + u
+
+so a vertex moves at most to the layer in one step whatever its speed (no tunnelling
+through a surface it was outside of: ``u_min`` comes from the old position), and the
+tangential impulse is bounded by ``mu`` times the normal one. On a plane tilted by theta
+under gravity the normal change per step is ``g cos(theta) dt`` and the tangential
+velocity gained ``g sin(theta) dt``: the vertex sticks exactly when ``tan(theta) <= mu_s``
+and otherwise slides with ``a = g (sin(theta) - mu_k cos(theta))``. After the position
+update ``x += dt v``, a vertex still inside the layer (a curved surface under a tangential
+motion, an obstacle moved onto it) is put back on it along the normal, a position change
+without velocity, so contact creates no kinetic energy.
+
+The change of velocity is the contact impulse: ``f = m (v_after - v_before) / dt`` is the
+force on the vertex over the step (the obstacle feels ``-f``); the kinetic energy it
+removes in the obstacle's frame, ``m/2 (|u_before|^2 - |u_after|^2) >= 0``, is counted as
+dissipation and the obstacle's work on the cloth as external work (``State.acc``), so the
+energy balance of the report still closes.
+
+Layout: the obstacles are rows of :data:`WIDTH` floats in ``Control.obstacles`` (columns
+named below), mesh fields in ``Control.sdf_meta`` / ``Control.sdf_data``; per vertex, the
+last step's contact in ``Control.contact`` (force on the vertex (3), obstacle row or -1,
+gap ``d - th`` at its old position). This module imports no ROS package.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .compiled import kernel
+
+__all__ = ['SHAPES', 'WIDTH', 'resolve', 'distance', 'rotation_matrix',
+           'mesh_distance_field']
+
+#: shape codes of column ``SHAPE``
+SHAPES = {'plane': 0, 'sphere': 1, 'box': 2, 'capsule': 3, 'cylinder': 4, 'mesh': 5}
+
+# columns of an obstacle row
+SHAPE = 0
+POS = 1          # 1..3 position c
+ROT = 4          # 4..12 R, row-major (world = c + R p)
+VEL = 13         # 13..15 linear velocity [m/s]
+OMEGA = 16       # 16..18 angular velocity [rad/s], world frame
+PARAM = 19       # 19..21 radius / half extents / (radius, half length)
+MU_S = 22
+MU_K = 23
+FIELD = 24       # row of Control.sdf_meta (mesh)
+WIDTH = 25
+
+# Control.contact columns
+C_FORCE = 0
+C_ID = 3
+C_GAP = 4
+C_WIDTH = 5
+
+#: distance reported where a mesh's field has no sample (outside its grid): no contact
+FAR = 1e30
+
+
+def rotation_matrix(q) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = (float(c) for c in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@kernel()
+def _field(meta, data, k, p0, p1, p2):
+    """Trilinear interpolation of mesh field ``k`` at local point p: (d, gradient)."""
+    off = int(meta[k, 0])
+    nx = int(meta[k, 1])
+    ny = int(meta[k, 2])
+    nz = int(meta[k, 3])
+    h = meta[k, 7]
+    gx = (p0 - meta[k, 4]) / h
+    gy = (p1 - meta[k, 5]) / h
+    gz = (p2 - meta[k, 6]) / h
+    if not (gx >= 0.0 and gy >= 0.0 and gz >= 0.0 and gx <= nx - 1 and gy <= ny - 1
+            and gz <= nz - 1):
+        return FAR, 0.0, 0.0, 1.0
+    i = min(int(gx), nx - 2)
+    j = min(int(gy), ny - 2)
+    l = min(int(gz), nz - 2)
+    tx = gx - i
+    ty = gy - j
+    tz = gz - l
+    base = off + (i * ny + j) * nz + l
+    sx = ny * nz
+    c0_ = data[base]
+    c1_ = data[base + 1]
+    c2_ = data[base + nz]
+    c3_ = data[base + nz + 1]
+    c4_ = data[base + sx]
+    c5_ = data[base + sx + 1]
+    c6_ = data[base + sx + nz]
+    c7_ = data[base + sx + nz + 1]
+    # trilinear value and its exact gradient (corner a b e at index 4a + 2b + e)
+    c00 = c0_ * (1 - tz) + c1_ * tz
+    c01 = c2_ * (1 - tz) + c3_ * tz
+    c10 = c4_ * (1 - tz) + c5_ * tz
+    c11 = c6_ * (1 - tz) + c7_ * tz
+    c0 = c00 * (1 - ty) + c01 * ty
+    c1 = c10 * (1 - ty) + c11 * ty
+    d = c0 * (1 - tx) + c1 * tx
+    ddx = (c1 - c0) / h
+    ddy = ((c01 - c00) * (1 - tx) + (c11 - c10) * tx) / h
+    z0 = (c1_ - c0_) * (1 - ty) + (c3_ - c2_) * ty
+    z1 = (c5_ - c4_) * (1 - ty) + (c7_ - c6_) * ty
+    ddz = (z0 * (1 - tx) + z1 * tx) / h
+    return d, ddx, ddy, ddz
+
+
+@kernel()
+def _local(ob, k, x0, x1, x2):
+    """The point in obstacle k's frame: p = R^T (x - c)."""
+    r0 = x0 - ob[k, POS]
+    r1 = x1 - ob[k, POS + 1]
+    r2 = x2 - ob[k, POS + 2]
+    p0 = ob[k, ROT] * r0 + ob[k, ROT + 3] * r1 + ob[k, ROT + 6] * r2
+    p1 = ob[k, ROT + 1] * r0 + ob[k, ROT + 4] * r1 + ob[k, ROT + 7] * r2
+    p2 = ob[k, ROT + 2] * r0 + ob[k, ROT + 5] * r1 + ob[k, ROT + 8] * r2
+    return p0, p1, p2
+
+
+@kernel()
+def _sign(a):
+    return 1.0 if a >= 0.0 else -1.0
+
+
+@kernel()
+def distance(ob, meta, data, k, x0, x1, x2):
+    """Signed distance [m] of world point x from obstacle k's surface and the outward
+    unit normal in the world frame (module docstring): (d, n0, n1, n2)."""
+    shape = int(ob[k, SHAPE])
+    p0, p1, p2 = _local(ob, k, x0, x1, x2)
+    g0 = 0.0
+    g1 = 0.0
+    g2 = 1.0
+    if shape == 0:                                   # plane z = 0, solid below
+        d = p2
+    elif shape == 1:                                 # sphere
+        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        d = r - ob[k, PARAM]
+        if r > 0.0:
+            g0 = p0 / r
+            g1 = p1 / r
+            g2 = p2 / r
+    elif shape == 2:                                 # box
+        q0 = abs(p0) - ob[k, PARAM]
+        q1 = abs(p1) - ob[k, PARAM + 1]
+        q2 = abs(p2) - ob[k, PARAM + 2]
+        if q0 > 0.0 or q1 > 0.0 or q2 > 0.0:
+            a0 = max(q0, 0.0)
+            a1 = max(q1, 0.0)
+            a2 = max(q2, 0.0)
+            d = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            g0 = _sign(p0) * a0 / d
+            g1 = _sign(p1) * a1 / d
+            g2 = _sign(p2) * a2 / d
+        else:                                        # inside: the nearest face
+            g2 = 0.0
+            if q0 >= q1 and q0 >= q2:
+                d = q0
+                g0 = _sign(p0)
+            elif q1 >= q2:
+                d = q1
+                g1 = _sign(p1)
+            else:
+                d = q2
+                g2 = _sign(p2)
+    elif shape == 3:                                 # capsule along local z
+        s = min(max(p2, -ob[k, PARAM + 1]), ob[k, PARAM + 1])
+        w2 = p2 - s
+        r = math.sqrt(p0 * p0 + p1 * p1 + w2 * w2)
+        d = r - ob[k, PARAM]
+        if r > 0.0:
+            g0 = p0 / r
+            g1 = p1 / r
+            g2 = w2 / r
+    elif shape == 4:                                 # cylinder along local z
+        rho = math.sqrt(p0 * p0 + p1 * p1)
+        wr = rho - ob[k, PARAM]
+        wz = abs(p2) - ob[k, PARAM + 1]
+        e0 = p0 / rho if rho > 0.0 else 1.0
+        e1 = p1 / rho if rho > 0.0 else 0.0
+        if wr > 0.0 or wz > 0.0:
+            a = max(wr, 0.0)
+            b = max(wz, 0.0)
+            d = math.sqrt(a * a + b * b)
+            g0 = e0 * a / d
+            g1 = e1 * a / d
+            g2 = _sign(p2) * b / d
+        elif wr >= wz:
+            d = wr
+            g0 = e0
+            g1 = e1
+            g2 = 0.0
+        else:
+            d = wz
+            g2 = _sign(p2)
+    else:                                            # mesh: sampled field
+        d, g0, g1, g2 = _field(meta, data, int(ob[k, FIELD]), p0, p1, p2)
+        gn = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+        if gn > 0.0:
+            g0 /= gn
+            g1 /= gn
+            g2 /= gn
+        else:
+            g2 = 1.0
+    n0 = ob[k, ROT] * g0 + ob[k, ROT + 1] * g1 + ob[k, ROT + 2] * g2
+    n1 = ob[k, ROT + 3] * g0 + ob[k, ROT + 4] * g1 + ob[k, ROT + 5] * g2
+    n2 = ob[k, ROT + 6] * g0 + ob[k, ROT + 7] * g1 + ob[k, ROT + 8] * g2
+    return d, n0, n1, n2
+
+
+@kernel()
+def _point_velocity(ob, k, x0, x1, x2):
+    """The obstacle's velocity at world point x: v_lin + w x (x - c)."""
+    r0 = x0 - ob[k, POS]
+    r1 = x1 - ob[k, POS + 1]
+    r2 = x2 - ob[k, POS + 2]
+    w0 = ob[k, OMEGA]
+    w1 = ob[k, OMEGA + 1]
+    w2 = ob[k, OMEGA + 2]
+    return (ob[k, VEL] + w1 * r2 - w2 * r1, ob[k, VEL + 1] + w2 * r0 - w0 * r2,
+            ob[k, VEL + 2] + w0 * r1 - w1 * r0)
+
+
+@kernel()
+def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
+    """The contact response of vertex i (module docstring) at old position x for its new
+    velocity v (before the position update), with obstacles ``ob`` (their fields
+    ``meta``, ``data``) and thickness ``th``; writes row i of ``out``
+    (``Control.contact``) and returns (v0, v1, v2, external work [J], dissipation [J])
+    with v the velocity after contact. The caller then moves the vertex and puts it back
+    on the layer (:func:`push_out`). Only scalars and the contact arrays come in, so the
+    step's position and velocity arrays stay private to its loop (no aliasing for LLVM
+    to assume)."""
+    b0 = v0
+    b1 = v1
+    b2 = v2
+    hit = -1.0
+    gap = FAR
+    work = 0.0
+    diss = 0.0
+    for k in range(ob.shape[0]):
+        d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
+        gap = min(gap, d - th)
+        o0, o1, o2 = _point_velocity(ob, k, x0, x1, x2)
+        u0 = v0 - o0
+        u1 = v1 - o1
+        u2 = v2 - o2
+        un = u0 * n0 + u1 * n1 + u2 * n2
+        umin = -(d - th) / dt if d > th else 0.0
+        if un >= umin:
+            continue
+        before = u0 * u0 + u1 * u1 + u2 * u2
+        j = umin - un
+        u0 += j * n0
+        u1 += j * n1
+        u2 += j * n2
+        un = umin
+        t0 = u0 - un * n0
+        t1 = u1 - un * n1
+        t2 = u2 - un * n2
+        ut = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if ut <= ob[k, MU_S] * j:
+            s = 1.0
+        else:
+            s = ob[k, MU_K] * j / ut
+        u0 -= s * t0
+        u1 -= s * t1
+        u2 -= s * t2
+        w0 = o0 + u0
+        w1 = o1 + u1
+        w2 = o2 + u2
+        after = u0 * u0 + u1 * u1 + u2 * u2
+        lost = 0.5 * m * (before - after)
+        diss += lost
+        work += 0.5 * m * ((w0 * w0 + w1 * w1 + w2 * w2) - (v0 * v0 + v1 * v1 + v2 * v2)) + lost
+        v0 = w0
+        v1 = w1
+        v2 = w2
+        hit = float(k)
+    out[i, C_FORCE] = m * (v0 - b0) / dt
+    out[i, C_FORCE + 1] = m * (v1 - b1) / dt
+    out[i, C_FORCE + 2] = m * (v2 - b2) / dt
+    out[i, C_ID] = hit
+    out[i, C_GAP] = gap
+    return v0, v1, v2, work, diss
+
+
+@kernel()
+def push_out(x0, x1, x2, ob, meta, data, th):
+    """A vertex just moved to x, put back on the contact layer of every obstacle it is
+    inside (along the normal; no velocity change): the corrected (x0, x1, x2)."""
+    for k in range(ob.shape[0]):
+        d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
+        if d < th:
+            x0 += (th - d) * n0
+            x1 += (th - d) * n1
+            x2 += (th - d) * n2
+    return x0, x1, x2
+
+
+@kernel(parallel=True)
+def distances(ob, meta, data, k, pts):
+    """Signed distances and normals of points (m,3) from obstacle k: (m,4)."""
+    out = np.empty((pts.shape[0], 4))
+    for a in nb.prange(pts.shape[0]):
+        d, n0, n1, n2 = distance(ob, meta, data, k, pts[a, 0], pts[a, 1], pts[a, 2])
+        out[a, 0] = d
+        out[a, 1] = n0
+        out[a, 2] = n1
+        out[a, 3] = n2
+    return out
+
+
+def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
+                        margin: float):
+    """A signed distance field of a closed triangle mesh (in its own frame) on a regular
+    grid of ``spacing`` [m] covering its bounds plus ``margin``: (origin (3,), shape (3,),
+    values flat, C order (x, y, z)). Distances are exact at the samples (trimesh's closest
+    point on the surface), the sign from trimesh's containment test (the mesh should be
+    watertight); between samples trilinear interpolation, exact for planes and within
+    ``spacing^2 / (8 R)`` of a surface of curvature radius R."""
+    import trimesh
+    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces, np.int64),
+                           process=False)
+    lo = mesh.bounds[0] - margin
+    hi = mesh.bounds[1] + margin
+    shape = np.maximum(2, np.ceil((hi - lo) / spacing).astype(int) + 1)
+    axes = [lo[a] + spacing * np.arange(shape[a]) for a in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3)
+    _, dist, _ = trimesh.proximity.closest_point(mesh, pts)
+    inside = mesh.contains(pts) if mesh.is_watertight else np.zeros(len(pts), bool)
+    values = np.where(inside, -dist, dist)
+    return lo, shape, values
