@@ -3,6 +3,8 @@
 Each test owns an explicit rclpy Context, a ClothNode on a small mesh and a second node
 with real publishers/subscribers, all spun by one executor in this process.
 """
+import glob
+import os
 import time
 
 import numpy as np
@@ -12,10 +14,10 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import Point, Vector3Stamped, WrenchStamped
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from cosserat_ros.ros import pacing
 from cosserat_ros.ros.node import ClothNode, ConfigError, percentile, pin_set
@@ -249,6 +251,14 @@ def test_pause_service(h):
     ({'coloring': 'rainbow'}, 'coloring'),
     ({'gravity': [0.0, 9.81]}, 'gravity'),
     ({'material.zeta': 100}, 'material.zeta'),            # an integer where a float is due
+    ({'obstacles.names': ['a'], 'obstacles.a.shape': 'cone'}, 'obstacles.a.shape'),
+    ({'obstacles.names': ['a'], 'obstacles.a.shape': 'sphere'}, 'obstacle a: radius'),
+    ({'obstacles.names': ['a'], 'obstacles.a.shape': 'box',
+      'obstacles.a.half_extents': [1.0, 1.0, float('nan')]}, 'obstacle a: half_extents'),
+    ({'obstacles.names': ['a'], 'obstacles.a.shape': 'mesh',
+      'obstacles.a.file': '/nonexistent.stl'}, 'obstacle a: mesh file'),
+    ({'obstacles.names': ['a', 'a']}, 'duplicates'),
+    ({'contact.thickness': 0.0}, 'contact.thickness'),
 ])
 def test_bad_startup_parameters_are_refused(params, match):
     ctx = Context()
@@ -270,7 +280,16 @@ def test_named_pin_sets():
     assert len(pin_set(m, 'boundary')) == 14 and len(pin_set(m, 'none')) == 0
 
 
-@pytest.mark.parametrize('config', ['cloth.yaml', 'flag.yaml', 'dome.yaml', 'membrane.yaml'])
+SHIPPED = sorted(os.path.basename(f) for f in glob.glob(os.path.join(
+    os.path.dirname(__file__), '..', 'config', '*.yaml')))
+
+
+def test_every_shipped_config_is_tested():
+    assert {'cloth.yaml', 'flag.yaml', 'dome.yaml', 'membrane.yaml', 'table.yaml',
+            'drape.yaml'} <= set(SHIPPED)
+
+
+@pytest.mark.parametrize('config', SHIPPED)
 def test_shipped_configs_start_and_step(config):
     from ament_index_python.packages import get_package_share_directory
     path = f'{get_package_share_directory("cosserat_ros")}/config/{config}'
@@ -279,7 +298,7 @@ def test_shipped_configs_start_and_step(config):
     node = ClothNode(context=ctx)
     try:
         assert node.sim.dt <= node.sim.critical_dt()
-        assert node.sim.pinned.any()
+        assert node.sim.pinned.any() or node.sim.obstacles   # held, or it lands somewhere
         for _ in range(5):
             node.tick()
         assert node.diverged is None and node.sim.step_count > 0
@@ -424,3 +443,102 @@ def test_the_node_paces_its_ticks_with_its_pacer(h, monkeypatch):
     assert h.node.sim.step_count - before == round(h.node.period / h.node.sim.dt)
     vals = {kv.key: kv.value for kv in h.node.diagnostics().status[0].values}
     assert float(vals['step_cost_ms']) == pytest.approx(h.node.pacer.step_cost * 1e3)
+
+
+
+def _marker(ns='ball', mid=1, mtype=Marker.SPHERE, action=Marker.ADD, pos=(0.0, 0.0, -0.5),
+            scale=(0.2, 0.2, 0.2), frame='world', quat=(0.0, 0.0, 0.0, 1.0)):
+    m = Marker()
+    m.header.frame_id = frame
+    m.ns, m.id, m.type, m.action = ns, mid, mtype, action
+    m.pose.position.x, m.pose.position.y, m.pose.position.z = pos
+    (m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+     m.pose.orientation.w) = quat
+    m.scale.x, m.scale.y, m.scale.z = scale
+    return m
+
+
+def _markers(*ms):
+    arr = MarkerArray()
+    arr.markers = list(ms)
+    return arr
+
+
+def test_obstacles_from_markers_are_added_moved_refused_and_deleted():
+    h = Harness()
+    pub = h.peer.create_publisher(MarkerArray, '/cloth_node/obstacles', 10)
+    shown = []
+    h.peer.create_subscription(MarkerArray, '/cloth_node/obstacle_markers', shown.append, 10)
+    wrenches = []
+    try:
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+        pub.publish(_markers(_marker(), _marker('table', 2, Marker.CUBE,
+                                                scale=(1.0, 1.0, 0.1), pos=(0, 0, -1.0))))
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 2, 5)
+        names = {d['name']: oid for oid, d in h.node.sim.obstacles.items()}
+        assert set(names) == {'ball_1', 'table_2'}
+        assert h.node.sim.obstacles[names['ball_1']]['radius'] == pytest.approx(0.1)
+        assert h.node.sim.obstacles[names['table_2']]['half_extents'] == (0.5, 0.5, 0.05)
+        h.peer.create_subscription(WrenchStamped, '/cloth_node/contact/ball_1',
+                                   wrenches.append, 10)
+        assert h.spin_until(lambda: wrenches and shown, 5)
+        assert {m.ns for m in shown[-1].markers if m.action == Marker.ADD} == set(names)
+        # moved: the same obstacle at the new pose
+        pub.publish(_markers(_marker(pos=(0.1, 0.0, -0.5))))
+        assert h.spin_until(lambda: h.node.sim.obstacles[names['ball_1']]['position'][0]
+                            == pytest.approx(0.1), 5)
+        # refused whole, nothing changed: NaN, unknown type, other frame, zero size,
+        # non-uniform sphere, an open mesh
+        before = h.node.rejected['obstacles']
+        bad = [_marker(pos=(float('nan'), 0, 0)), _marker(mtype=Marker.ARROW),
+               _marker(frame='map'), _marker(scale=(0.0, 0.0, 0.0)),
+               _marker(scale=(0.2, 0.3, 0.2)),
+               _marker('m', 3, Marker.TRIANGLE_LIST, scale=(1, 1, 1))]
+        bad[-1].points = [Point(x=float(a), y=float(b), z=0.0)
+                          for a, b in [(0, 0), (1, 0), (0, 1)] * 4]
+        for m in bad:
+            pub.publish(_markers(_marker('ok', 9), m))
+            assert h.spin_until(lambda: h.node.rejected['obstacles'] > before, 5), m
+            before = h.node.rejected['obstacles']
+        assert set(d['name'] for d in h.node.sim.obstacles.values()) == set(names)
+        pub.publish(_markers(_marker(action=Marker.DELETE)))
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 1, 5)
+        pub.publish(_markers(_marker(action=Marker.DELETEALL)))
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 0, 5)
+        h.spin(0.2)
+        assert h.node.diverged is None and np.all(np.isfinite(h.node.sim.positions))
+    finally:
+        h.close()
+
+
+def test_table_config_reports_the_weight_on_the_table():
+    """config/table.yaml: the cloth dropped on the table comes to rest on it; the
+    wrench on ~/contact/table is then its weight (within 1%)."""
+    from ament_index_python.packages import get_package_share_directory
+    path = f'{get_package_share_directory("cosserat_ros")}/config/table.yaml'
+    ctx = Context()
+    rclpy.init(context=ctx, args=['--ros-args', '--params-file', path])
+    node = ClothNode(context=ctx, parameter_overrides=[Parameter('status_period', value=0.0)])
+    peer = rclpy.create_node('peer', context=ctx)
+    got = []
+    peer.create_subscription(WrenchStamped, '/cloth_node/contact/table', got.append, 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(peer)
+    try:
+        names = {d['name'] for d in node.sim.obstacles.values()}
+        assert names == {'table', 'ground'}
+        node.sim.step(int(round(4.0 / node.sim.dt)))      # settle without pacing
+        end = time.monotonic() + 10
+        while time.monotonic() < end and not got:
+            node.publish_state()
+            ex.spin_once(timeout_sec=0.05)
+        assert got
+        weight = node.sim.coefficients.mass.sum() * 9.81
+        assert got[-1].wrench.force.z == pytest.approx(-weight, rel=0.01)
+        assert node.sim.positions[:, 2].max() < -0.29         # on the table or below it
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        peer.destroy_node()
+        rclpy.shutdown(context=ctx)

@@ -38,8 +38,11 @@ SHAPE_ARGS = {
 #: the mesh field's default grid spacing [m] and its margin around the mesh, in cells
 FIELD_SPACING = 0.01
 FIELD_MARGIN_CELLS = 4
-#: the most samples a mesh field may have (bounded work and memory per obstacle)
+#: the most samples a mesh field may have (bounded memory per obstacle)
 FIELD_MAX_SAMPLES = 2_000_000
+#: the most triangle-sample distance tests its construction may make (bounded work: about
+#: a second; a 5,120-triangle sphere of radius 0.2 m at 1 cm makes ~4e6)
+FIELD_MAX_VISITS = 5e7
 
 
 def _vec(value, name, n=3) -> np.ndarray:
@@ -221,6 +224,13 @@ class ObstacleSet:
             raise ValueError(f'mesh distance field of {samples:.3g} samples at spacing '
                              f'{spacing} m exceeds {FIELD_MAX_SAMPLES}: use a larger '
                              'spacing')
+        band = FIELD_MARGIN_CELLS * spacing
+        ext = (verts[faces].max(1) - verts[faces].min(1) + 2 * band) / spacing + 2
+        visits = float(np.prod(ext, axis=1).sum())
+        if visits > FIELD_MAX_VISITS:
+            raise ValueError(f'mesh distance field would test {visits:.3g} triangle-sample '
+                             f'pairs at spacing {spacing} m, more than {FIELD_MAX_VISITS:.3g}'
+                             ': use fewer or smaller triangles, or a larger spacing')
         import trimesh
         if not trimesh.Trimesh(verts, faces, process=False).is_watertight:
             raise ValueError('mesh obstacle must be closed (watertight): its inside '
@@ -232,6 +242,15 @@ class ObstacleSet:
         o.position = _vec(g.get('center', (0.0, 0.0, 0.0)), 'center')
         o.orientation = _quaternion(g.get('orientation', (0, 0, 0, 1)))
         o.params = {'triangles': len(faces), 'spacing': spacing}
+
+    def snapshot(self):
+        """Everything :meth:`restore_snapshot` needs to undo later changes."""
+        import copy
+        return ({oid: copy.copy(o) for oid, o in self._items.items()}, self._next)
+
+    def restore_snapshot(self, snap) -> None:
+        self._items, self._next = dict(snap[0]), snap[1]
+        self._rebuild()
 
     def remove(self, oid: int) -> None:
         self._item(oid)

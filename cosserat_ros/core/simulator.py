@@ -357,6 +357,19 @@ class ClothSimulator:
         friction (a copy; change them through the methods)."""
         return self._obstacles.describe()
 
+    def find_obstacle(self, name: str) -> Optional[int]:
+        """The id of the obstacle called ``name``, or None."""
+        return self._obstacles.find(name)
+
+    def obstacle_snapshot(self):
+        """An opaque copy of the obstacle set: :meth:`restore_obstacles` undoes every
+        change made after it (a batch of changes applied all or not at all)."""
+        return self._obstacles.snapshot()
+
+    def restore_obstacles(self, snapshot) -> None:
+        self._obstacles.restore_snapshot(snapshot)
+        self._sync_obstacles()
+
     def obstacle_mesh(self, id):
         """(vertices, faces) of a mesh obstacle in its own frame, else None."""
         return self._obstacles.mesh_of(id)

@@ -12,7 +12,8 @@ import numpy as np
 
 from ..core.surface_query import closest_points
 
-__all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field']
+__all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field',
+           'obstacle_markers', 'obstacle_name', 'MAX_MARKERS', 'MAX_MESH_POINTS']
 
 
 class CommandError(ValueError):
@@ -77,3 +78,95 @@ def force_field(msg, frame_id: str, max_acceleration: float) -> np.ndarray:
         raise CommandError(f'|F| = {np.linalg.norm(v):.4g} m/s^2 above max_acceleration '
                            f'{max_acceleration:.4g}')
     return v
+
+
+#: limits of ``~/obstacles``: markers per message, points of one TRIANGLE_LIST
+MAX_MARKERS = 64
+MAX_MESH_POINTS = 30_000
+
+# visualization_msgs/Marker constants (kept here so the parser needs no ROS import)
+_CUBE, _SPHERE, _CYLINDER, _TRIANGLE_LIST = 1, 2, 3, 11
+_ADD, _DELETE, _DELETEALL = 0, 2, 3
+_SHAPES = {_CUBE: 'box', _SPHERE: 'sphere', _CYLINDER: 'cylinder',
+           _TRIANGLE_LIST: 'mesh'}
+
+
+def obstacle_name(ns: str, mid: int) -> str:
+    """The obstacle name of marker (ns, id): ``<ns>_<id>`` in the characters a ROS topic
+    name token allows (its wrench goes to ``~/contact/<name>``)."""
+    base = ''.join(ch if ch.isalnum() or ch == '_' else '_' for ch in (ns or 'marker'))
+    name = f'{base}_{int(mid)}'
+    return name if name[0].isalpha() else 'o_' + name
+
+
+def obstacle_markers(msg, frame_id: str):
+    """A ``visualization_msgs/MarkerArray`` -> a list of operations, each
+    ``('add', name, shape, geometry, pose)``, ``('delete', name)`` or ``('deleteall',)``;
+    ``pose`` is (position (3,), quaternion (4,)). SPHERE (diameter = scale, equal in x,
+    y, z), CUBE (full extents = scale), CYLINDER (diameter scale.x = scale.y, height
+    scale.z), TRIANGLE_LIST (points in the marker's frame, a closed mesh); every marker
+    in ``frame_id`` (or an empty frame); at most :data:`MAX_MARKERS` markers and
+    :data:`MAX_MESH_POINTS` points per mesh. Any bad marker refuses the whole message."""
+    markers = list(msg.markers)
+    if len(markers) > MAX_MARKERS:
+        raise CommandError(f'{len(markers)} markers, at most {MAX_MARKERS} per message')
+    ops = []
+    for m in markers:
+        where = f'marker {m.ns!r}/{m.id}'
+        if m.action == _DELETEALL:
+            ops.append(('deleteall',))
+            continue
+        name = obstacle_name(m.ns, m.id)
+        if m.action == _DELETE:
+            ops.append(('delete', name))
+            continue
+        if m.action != _ADD:
+            raise CommandError(f'{where}: action {m.action} is not ADD, DELETE or DELETEALL')
+        if m.header.frame_id not in ('', frame_id):
+            raise CommandError(f'{where}: frame {m.header.frame_id!r} is not {frame_id!r} '
+                               '(no tf here)')
+        if m.type not in _SHAPES:
+            raise CommandError(f'{where}: marker type {m.type} is not SPHERE, CUBE, CYLINDER '
+                               'or TRIANGLE_LIST')
+        p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        q = np.array([m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+                      m.pose.orientation.w])
+        s = np.array([m.scale.x, m.scale.y, m.scale.z])
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.all(np.isfinite(s))):
+            raise CommandError(f'{where}: non-finite pose or scale')
+        nq = float(np.linalg.norm(q))
+        if abs(nq - 1.0) > 1e-3:
+            raise CommandError(f'{where}: orientation is not a unit quaternion '
+                               f'(norm {nq:.4g})')
+        q = q / nq
+        shape = _SHAPES[m.type]
+        if shape == 'mesh':
+            if len(m.points) > MAX_MESH_POINTS:
+                raise CommandError(f'{where}: {len(m.points)} points, at most '
+                                   f'{MAX_MESH_POINTS}')
+            if len(m.points) < 12 or len(m.points) % 3:
+                raise CommandError(f'{where}: a TRIANGLE_LIST needs 3 points per triangle '
+                                   f'and at least 4 triangles, got {len(m.points)} points')
+            pts = np.array([[pt.x, pt.y, pt.z] for pt in m.points])
+            if not np.all(np.isfinite(pts)):
+                raise CommandError(f'{where}: non-finite point')
+            # merge the corners shared by triangles (bit-equal points), as RViz draws them
+            verts, inverse = np.unique(pts, axis=0, return_inverse=True)
+            geometry = {'vertices': verts, 'faces': inverse.reshape(-1, 3)}
+        else:
+            if np.any(s <= 0):
+                raise CommandError(f'{where}: scale must be positive, got {tuple(s)}')
+            if shape == 'sphere':
+                if np.ptp(s) > 1e-9 * s.max():
+                    raise CommandError(f'{where}: a SPHERE needs equal scales (an ellipsoid '
+                                       f'is not supported), got {tuple(s)}')
+                geometry = {'radius': s[0] / 2}
+            elif shape == 'box':
+                geometry = {'half_extents': s / 2}
+            else:
+                if abs(s[0] - s[1]) > 1e-9 * s.max():
+                    raise CommandError(f'{where}: a CYLINDER needs scale.x = scale.y, got '
+                                       f'{tuple(s)}')
+                geometry = {'radius': s[0] / 2, 'half_length': s[2] / 2}
+        ops.append(('add', name, shape, geometry, (p, q)))
+    return ops

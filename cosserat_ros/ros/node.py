@@ -12,6 +12,12 @@ name                     type                                   direction
 ``~/vertex_forces``      std_msgs/Float64MultiArray             in: rows [index, fx, fy, fz]
 ``~/point_forces``       std_msgs/Float64MultiArray             in: rows [px,py,pz, fx,fy,fz]
 ``~/force_field``        geometry_msgs/Vector3Stamped           in: uniform [m/s^2]
+``~/obstacles``          visualization_msgs/MarkerArray         in: add / move / delete
+``~/obstacle_markers``   visualization_msgs/MarkerArray         out: the obstacles, ~1 Hz
+``~/contact/<name>``     geometry_msgs/WrenchStamped            out, every tick: what the
+                                                                cloth exerts on obstacle
+                                                                <name> (torque about its
+                                                                origin)
 ``~/reset``              std_srvs/Trigger                       service
 ``~/pause``              std_srvs/SetBool                       service
 =======================  =====================================  ============================
@@ -38,13 +44,13 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from ..core import warmup
 from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
@@ -54,9 +60,28 @@ from . import commands
 from .conversions import colormap, mesh_marker_array, percentile
 from .pacing import Pacer
 from .params import (check_choice, check_dt, COLORINGS, ConfigError, MATERIAL_KEYS,
-                     PARAMETERS, pin_set, pinned_indices, RUNTIME_FLOATS, vec3)
+                     OBSTACLE_KEYS, obstacle_geometry, PARAMETERS, pin_set, pinned_indices,
+                     RUNTIME_FLOATS, vec3)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
+
+
+def _angular_velocity(q0, q1, dt: float) -> np.ndarray:
+    """The constant angular velocity [rad/s, world frame] turning unit quaternion q0
+    (x, y, z, w) into q1 in dt seconds: the axis-angle of q1 q0^-1 over dt."""
+    x0, y0, z0, w0 = -q0[0], -q0[1], -q0[2], q0[3]          # q0^-1
+    x1, y1, z1, w1 = q1
+    d = np.array([w1 * x0 + x1 * w0 + y1 * z0 - z1 * y0,
+                  w1 * y0 - x1 * z0 + y1 * w0 + z1 * x0,
+                  w1 * z0 + x1 * y0 - y1 * x0 + z1 * w0,
+                  w1 * w0 - x1 * x0 - y1 * y0 - z1 * z0])
+    if d[3] < 0:
+        d = -d
+    s = float(np.linalg.norm(d[:3]))
+    if s < 1e-12:
+        return np.zeros(3)
+    angle = 2.0 * math.atan2(s, d[3])
+    return d[:3] / s * angle / dt
 
 
 @dataclass
@@ -101,6 +126,10 @@ class ClothNode(Node):
         if len(pins):
             self.sim.pin(pins)
         self.frame_id = p['frame_id']
+        self.sim.contact_thickness = p['contact.thickness']
+        self._wrench_pubs: Dict[int, object] = {}
+        self._marker_seen: Dict[int, Tuple[float, np.ndarray, np.ndarray]] = {}
+        self._declared_obstacles(p['obstacles.names'])
         self._coloring = check_choice(p['coloring'], COLORINGS, 'coloring')
         self._wireframe = bool(p['wireframe'])
         self._force_timeout = p['force_timeout']
@@ -109,7 +138,8 @@ class ClothNode(Node):
         self._status_period = p['status_period']
         self._forces: Dict[str, Optional[_Force]] = {'vertex': None, 'point': None}
         self._field: Optional[Tuple[np.ndarray, float]] = None
-        self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0}
+        self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0,
+                         'obstacles': 0}
         self.paused = False
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
@@ -133,6 +163,12 @@ class ClothNode(Node):
                                  10)
         self.create_subscription(Float64MultiArray, '~/point_forces', self.on_point_forces, 10)
         self.create_subscription(Vector3Stamped, '~/force_field', self.on_force_field, 10)
+        self.create_subscription(MarkerArray, '~/obstacles', self.on_obstacles, 10)
+        self.obstacle_pub = self.create_publisher(MarkerArray, '~/obstacle_markers',
+                                                  reliable)
+        self._last_obstacle_pub = -1.0
+        for oid in self.sim.obstacles:
+            self._add_wrench_pub(oid)
         self.create_service(Trigger, '~/reset', self.on_reset)
         self.create_service(SetBool, '~/pause', self.on_pause)
         self.add_on_set_parameters_callback(self.validate_parameters)
@@ -174,6 +210,151 @@ class ClothNode(Node):
             if isinstance(exc, ConfigError):
                 raise
             raise ConfigError(f'mesh: {exc}') from None
+
+    def _declared_obstacles(self, names):
+        """The obstacles of the parameters (``obstacles.names`` and, for each,
+        ``obstacles.<name>.<key>``, :data:`.params.OBSTACLE_KEYS`)."""
+        names = [n for n in names if n]
+        if len(set(names)) != len(names):
+            raise ConfigError(f'obstacles.names has duplicates: {names}')
+        for name in names:
+            values = {}
+            for key, default in OBSTACLE_KEYS.items():
+                full = f'obstacles.{name}.{key}'
+                try:
+                    self.declare_parameter(full, default, ParameterDescriptor(
+                        description=f'obstacle {name}: {key}', read_only=True))
+                except Exception as exc:   # rclpy's InvalidParameter*Exception family
+                    raise ConfigError(f'parameter {full}: {exc}') from None
+                values[key] = self.get_parameter(full).value
+            shape, friction, geometry = obstacle_geometry(name, values)
+            if 'file' in geometry:
+                geometry['file'] = self._mesh_path(geometry['file'])
+            try:
+                self.sim.add_obstacle(shape, friction=friction, name=name, **geometry)
+            except ValueError as exc:
+                raise ConfigError(f'obstacle {name}: {exc}') from None
+
+    def _add_wrench_pub(self, oid: int):
+        name = self.sim.obstacles[oid]['name']
+        self._wrench_pubs[oid] = self.create_publisher(WrenchStamped, f'~/contact/{name}', 5)
+
+    def on_obstacles(self, msg: MarkerArray):
+        """Markers -> obstacles (:func:`.commands.obstacle_markers`), all or none: ADD
+        creates or moves obstacle ``<ns>_<id>`` (its velocity from its last pose), DELETE
+        removes it, DELETEALL removes every obstacle made from markers."""
+        try:
+            ops = commands.obstacle_markers(msg, self.frame_id)
+        except commands.CommandError as exc:
+            self._reject('obstacles', str(exc))
+            return
+        snap = self.sim.obstacle_snapshot()
+        seen = dict(self._marker_seen)
+        now = self.sim.time
+        try:
+            for op in ops:
+                self._apply_obstacle_op(op, seen, now)
+            if sum(1 for oid in seen if oid in self.sim.obstacles) > commands.MAX_MARKERS:
+                raise ValueError(f'more than {commands.MAX_MARKERS} obstacles from markers')
+        except ValueError as exc:
+            self.sim.restore_obstacles(snap)
+            self._reject('obstacles', str(exc))
+            return
+        self._marker_seen = {oid: v for oid, v in seen.items() if oid in self.sim.obstacles}
+        for oid in list(self._wrench_pubs):
+            if oid not in self.sim.obstacles:
+                self.destroy_publisher(self._wrench_pubs.pop(oid))
+        for oid in self.sim.obstacles:
+            if oid not in self._wrench_pubs:
+                self._add_wrench_pub(oid)
+        self._last_obstacle_pub = -1.0               # republish at the next tick
+
+    def _apply_obstacle_op(self, op, seen, now):
+        if op[0] == 'deleteall':
+            for oid in list(seen):
+                if oid in self.sim.obstacles:
+                    self.sim.remove_obstacle(oid)
+                del seen[oid]
+            return
+        oid = self.sim.find_obstacle(op[1])
+        if op[0] == 'delete':
+            if oid is not None and oid in seen:
+                self.sim.remove_obstacle(oid)
+                del seen[oid]
+            return
+        _, name, shape, geometry, (p, q) = op
+        if oid is not None and oid not in seen:
+            raise ValueError(f'{name} is a declared obstacle, not a marker\'s')
+        key = (shape, {k: np.asarray(v).tobytes() for k, v in geometry.items()})
+        if oid is not None and seen[oid][3] == key:
+            t0, p0, q0, _ = seen[oid]
+            dt = now - t0
+            v = (p - p0) / dt if 0 < dt < 1.0 else np.zeros(3)
+            w = _angular_velocity(q0, q, dt) if 0 < dt < 1.0 else np.zeros(3)
+            self.sim.set_obstacle_pose(oid, p, q, v, w)
+        else:
+            if oid is not None:
+                self.sim.remove_obstacle(oid)
+            place = dict(center=p)
+            if shape != 'sphere':
+                place['orientation'] = q
+            oid = self.sim.add_obstacle(shape, name=name, **geometry, **place)
+        seen[oid] = (now, p, q, key)
+
+    def publish_obstacles(self, stamp: int):
+        """The obstacles as markers in ``frame_id`` (ns = their name)."""
+        arr = MarkerArray()
+        sec, nsec = divmod(stamp, 1_000_000_000)
+        clear = Marker()
+        clear.action = Marker.DELETEALL
+        arr.markers.append(clear)
+        for oid, d in self.sim.obstacles.items():
+            m = Marker()
+            m.header.frame_id = self.frame_id
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nsec
+            m.ns, m.id, m.action = d['name'], 0, Marker.ADD
+            (m.pose.position.x, m.pose.position.y, m.pose.position.z) = d['position']
+            (m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+             m.pose.orientation.w) = d['orientation']
+            m.color.r, m.color.g, m.color.b, m.color.a = 0.6, 0.6, 0.6, 0.8
+            shape = d['shape']
+            if shape == 'sphere':
+                m.type = Marker.SPHERE
+                m.scale.x = m.scale.y = m.scale.z = 2 * d['radius']
+            elif shape == 'box':
+                m.type = Marker.CUBE
+                m.scale.x, m.scale.y, m.scale.z = (2 * h for h in d['half_extents'])
+            elif shape in ('cylinder', 'capsule'):
+                m.type = Marker.CYLINDER
+                m.scale.x = m.scale.y = 2 * d['radius']
+                m.scale.z = 2 * d['half_length'] + (2 * d['radius'] if shape == 'capsule'
+                                                    else 0.0)
+            elif shape == 'plane':
+                m.type = Marker.CUBE          # a thin 10 m square along the plane
+                m.scale.x = m.scale.y = 10.0
+                m.scale.z = 1e-3
+            else:
+                m.type = Marker.TRIANGLE_LIST
+                m.scale.x = m.scale.y = m.scale.z = 1.0
+                verts, faces = self.sim.obstacle_mesh(oid)
+                from geometry_msgs.msg import Point
+                m.points = [Point(x=float(a), y=float(b), z=float(c))
+                            for a, b, c in verts[faces.reshape(-1)]]
+            arr.markers.append(m)
+        self.obstacle_pub.publish(arr)
+
+    def publish_contact(self, stamp: int):
+        sec, nsec = divmod(stamp, 1_000_000_000)
+        for oid, (f, t) in self.sim.contact_forces().items():
+            pub = self._wrench_pubs.get(oid)
+            if pub is None or not (np.all(np.isfinite(f)) and np.all(np.isfinite(t))):
+                continue
+            w = WrenchStamped()
+            w.header.stamp.sec, w.header.stamp.nanosec = sec, nsec
+            w.header.frame_id = self.frame_id
+            w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(c) for c in f)
+            w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(c) for c in t)
+            pub.publish(w)
 
     # ------------------------------------------------------------------ commands
     def _reject(self, topic: str, reason: str):
@@ -227,6 +408,11 @@ class ClothNode(Node):
     def _expire_forces(self, now: float):
         if self._force_timeout <= 0:
             return
+        for oid, (t0, p0, q0, key) in self._marker_seen.items():
+            d = self.sim.obstacles.get(oid)
+            if (d is not None and self.sim.time - t0 > self._force_timeout
+                    and any(d['linear_velocity'] + d['angular_velocity'])):
+                self.sim.set_obstacle_pose(oid, d['position'], d['orientation'])
         changed = False
         for key, f in self._forces.items():
             if f is not None and now - f.received > self._force_timeout:
@@ -289,6 +475,11 @@ class ClothNode(Node):
             elif name == 'coloring' and val not in COLORINGS:
                 return SetParametersResult(successful=False,
                                            reason=f'coloring must be one of {COLORINGS}')
+            elif name == 'contact.thickness':
+                if not isinstance(val, float) or not (1e-5 <= val <= 0.1):
+                    return SetParametersResult(
+                        successful=False, reason='contact.thickness must be a float in '
+                                                 '[1e-5, 0.1] m')
             elif name in RUNTIME_FLOATS:
                 if not isinstance(val, float) or not (val >= 0 and math.isfinite(val)):
                     return SetParametersResult(successful=False,
@@ -329,6 +520,8 @@ class ClothNode(Node):
                 self._max_acc = val
             elif name == 'status_period':
                 self._status_period = val
+            elif name == 'contact.thickness':
+                self.sim.contact_thickness = val
         if changed_material:
             self.sim.material = Material(**mat)
 
@@ -408,6 +601,13 @@ class ClothNode(Node):
             edges=self.mesh.edges if self._wireframe else None, pinned=pinned,
             pin_size=0.3 * self.mesh.mean_edge_length))
         self.energy_pub.publish(self.energy_message(stamp))
+        if self._wrench_pubs:
+            self.publish_contact(stamp)
+        mono = time.monotonic()
+        if self.sim.obstacles and (self._last_obstacle_pub < 0
+                                   or mono - self._last_obstacle_pub >= 1.0):
+            self._last_obstacle_pub = mono
+            self.publish_obstacles(stamp)
         if self.clock_pub is not None:
             c = Clock()
             c.clock.sec, c.clock.nanosec = divmod(stamp, 1_000_000_000)
@@ -457,7 +657,11 @@ class ClothNode(Node):
                 'dt_over_critical': float(self.sim.dt / crit),
                 'vertices': self.mesh.n_vertices, 'faces': self.mesh.n_faces,
                 'sim_time': float(self.sim.time), 'paused': self.paused,
-                'rejected_total': rej}
+                'rejected_total': rej, 'obstacles': len(self.sim.obstacles)}
+        if self.sim.obstacles:
+            cs = self.sim.contact_state()
+            vals['contacts'] = cs['contacts']
+            vals['deepest_penetration_m'] = float(cs['deepest'])
         vals.update({f'rejected_{k}': v for k, v in self.rejected.items()})
         return self._status(f'{self.get_name()}: simulation', level, msg, vals)
 

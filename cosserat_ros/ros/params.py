@@ -17,7 +17,8 @@ from ..core.mesh import GRID_PATTERNS
 from ..core.solvers.explicit import DIVERGENCE_METHODS
 
 __all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'pin_set',
-           'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS']
+           'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS',
+           'OBSTACLE_KEYS', 'obstacle_geometry']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -85,7 +86,39 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'wireframe': (False, _desc('Publish a LINE_LIST wireframe too')),
     'status_period': (1.0, _desc('Seconds between one-line status logs (0 = off)',
                                  fp=_fp(0.0, 3600.0))),
+    'contact.thickness': (0.002, _desc('Distance the cloth keeps from every obstacle [m]',
+                                       fp=_fp(1e-5, 0.1))),
+    'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
+                                    'obstacles.<name>.shape and its geometry (README); '
+                                    "[''] for none", True)),
 }
+
+#: the parameters of each declared obstacle, obstacles.<name>.<key>: key -> default
+OBSTACLE_KEYS = {
+    'shape': '', 'point': [0.0, 0.0, 0.0], 'normal': [0.0, 0.0, 1.0],
+    'center': [0.0, 0.0, 0.0], 'radius': 0.0, 'half_extents': [0.0, 0.0, 0.0],
+    'half_length': 0.0, 'orientation': [0.0, 0.0, 0.0, 1.0], 'file': '',
+    'friction': [0.5], 'spacing': 0.01,
+}
+
+
+def obstacle_geometry(name: str, values: dict):
+    """The ``add_obstacle`` arguments of declared obstacle ``name`` from its parameter
+    values (key -> value): (shape, friction, geometry), else ConfigError."""
+    from ..core.obstacles import SHAPE_ARGS
+    shape = values['shape']
+    if shape not in SHAPE_ARGS:
+        raise ConfigError(f'obstacles.{name}.shape must be one of {", ".join(SHAPE_ARGS)}, '
+                          f'got {shape!r}')
+    keys = [k for k in SHAPE_ARGS[shape] if k in values and k not in ('vertices', 'faces')]
+    geometry = {k: values[k] for k in keys}
+    if shape == 'mesh' and not geometry.get('file'):
+        raise ConfigError(f'obstacles.{name}.file: a mesh obstacle needs a file')
+    friction = list(values['friction'])
+    if len(friction) not in (1, 2):
+        raise ConfigError(f'obstacles.{name}.friction must be [mu] or [mu_static, '
+                          f'mu_kinetic], got {friction}')
+    return shape, friction[0] if len(friction) == 1 else tuple(friction), geometry
 
 
 def check_choice(value, choices, name: str):
