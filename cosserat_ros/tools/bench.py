@@ -269,6 +269,65 @@ def part_peer(ours, sizes, sag_sizes, scene=ISSUE6, discrete=True):
               ' |', flush=True)
 
 
+# --------------------------------------------------------------------------- contact
+
+def contact_scene(n: int, obstacles: bool) -> ClothSimulator:
+    """The shipped cloth (``config/cloth.yaml``'s material, no pins) resting on the ground
+    (laid on its contact layer), with five primitives and a 5,120-triangle mesh beside it
+    (near, not touching) when ``obstacles``; without them, the same cloth in free fall."""
+    import trimesh
+    mesh = grid_mesh(n, n)
+    sim = ClothSimulator(mesh, scene_material(CLOTH), dt=1e-5, check_dt=False)
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    sim.dt = DT_FRACTION * sim.critical_dt()
+    x = mesh.vertices.copy()
+    x[:, 2] = sim.contact_thickness
+    sim.set_positions(x)
+    if obstacles:
+        sim.add_obstacle('plane')
+        sim.add_obstacle('sphere', center=(0.8, 0.0, 0.2), radius=0.2)
+        sim.add_obstacle('box', center=(-0.8, 0.0, 0.2), half_extents=(0.2, 0.2, 0.2))
+        sim.add_obstacle('capsule', center=(0.0, 0.8, 0.3), radius=0.1, half_length=0.2)
+        sim.add_obstacle('cylinder', center=(0.0, -0.8, 0.3), radius=0.1, half_length=0.2)
+        sim.add_obstacle('box', center=(0.8, 0.8, 0.1), half_extents=(0.1, 0.1, 0.1),
+                         orientation=(0.0, 0.0, 0.3826834, 0.9238795))
+        ico = trimesh.creation.icosphere(subdivisions=4, radius=0.2)
+        sim.add_obstacle('mesh', vertices=ico.vertices, faces=ico.faces,
+                         center=(-0.8, -0.8, 0.25))
+    return sim
+
+
+def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
+    print('\n## contact: the shipped cloth resting on the ground, five primitives and a '
+          '5,120-triangle mesh beside it\n')
+    print('"with / without": ms per step of the same cloth with those obstacles and with '
+          'none (in free fall), in alternating back-to-back batches, median of the '
+          'ratios; "field s": building the mesh obstacle\'s distance field.\n')
+    _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
+            'contacts', 'field s'))
+    for n in sizes:
+        import trimesh
+        ico = trimesh.creation.icosphere(subdivisions=4, radius=0.2)
+        from ..core.contact import mesh_distance_field
+        t = time.perf_counter()
+        mesh_distance_field(ico.vertices, ico.faces, 0.01, 0.04)
+        field_s = time.perf_counter() - t
+        sims = (contact_scene(n, False), contact_scene(n, True))
+        ks = [_batch_size(sim.step, 0.3, batch_s) for sim in sims]
+        ratios, per = [], [[], []]
+        for p in range(pairs):
+            got = [0.0, 0.0]
+            for j in ((0, 1) if p % 2 == 0 else (1, 0)):
+                t = time.perf_counter()
+                sims[j].step(ks[j])
+                got[j] = (time.perf_counter() - t) / ks[j]
+                per[j].append(got[j])
+            ratios.append(got[1] / got[0])
+        print(f'| {n} | {sims[0].n_vertices} | {1e3 * np.median(per[0]):.3f} | '
+              f'{1e3 * np.median(per[1]):.3f} | {np.median(ratios):.2f} | '
+              f'{sims[1].contact_state()["contacts"]} | {field_s:.2f} |', flush=True)
+
+
 # --------------------------------------------------------------------------- the node
 
 def _node_params(path: str, n: int, material: Material, dt: float, pinned):
@@ -403,6 +462,8 @@ def main(argv=None):
                     help='how long each node case is watched (0 = skip the node part)')
     ap.add_argument('--scenes', nargs='*', default=list(peer.SCENES),
                     choices=list(peer.SCENES))
+    ap.add_argument('--contact-sizes', type=int, nargs='*', default=[40, 80],
+                    help='N for the contact part (none: skip it)')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
@@ -413,6 +474,8 @@ def main(argv=None):
         sag = a.sag_sizes if scene is ISSUE6 else []
         if peer_sizes or sag:
             part_peer(ours, peer_sizes, sag, scene, discrete=scene is ISSUE6)
+    if a.contact_sizes:
+        part_contact(a.contact_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')
