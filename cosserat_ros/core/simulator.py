@@ -36,6 +36,7 @@ from .geometry import CURVATURE_ESTIMATORS, Geometry
 from .material import Material, material_tensor
 from .mesh import ClothMesh
 from .model import Model
+from .handles import HandleSet
 from .obstacles import ObstacleSet
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.stability import critical_dt as _critical_dt, max_eigenvalue as _max_eigenvalue
@@ -110,6 +111,8 @@ class ClothSimulator:
         self.state = State.at_rest(mesh.vertices)
         self.control = Control.empty(n)
         self._obstacles = ObstacleSet()
+        self._handles = HandleSet()
+        self._user_pins = np.zeros(n, dtype=bool)
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
         self._scratch = model_scratch(self.model)
@@ -220,14 +223,24 @@ class ClothSimulator:
         return self.control.pinned.copy()
 
     def pin(self, indices) -> None:
-        """Pin vertices (indices or a boolean mask): they keep their position."""
+        """Pin vertices (indices or a boolean mask): they keep their position (a pin is a
+        handle that never moves)."""
         idx = self._indices(indices)
-        self.control.pinned[idx] = True
+        self._user_pins[idx] = True
+        self._sync_pins()
         self.state.v[idx] = 0.0
 
     def unpin(self, indices) -> None:
-        """Release pinned vertices (indices or a boolean mask)."""
-        self.control.pinned[self._indices(indices)] = False
+        """Release pinned vertices (indices or a boolean mask); a vertex a handle holds
+        stays held until the handle releases it."""
+        self._user_pins[self._indices(indices)] = False
+        self._sync_pins()
+
+    def _sync_pins(self) -> None:
+        mask = self._user_pins.copy()
+        mask[self._handles.held()] = True
+        self.control.pinned[:] = mask
+        self.control.pin_velocity[~mask] = 0.0
 
     def set_vertex_forces(self, indices, forces) -> None:
         """Replace the external nodal forces [N]: ``forces`` (k, 3) on vertices ``indices``
@@ -260,7 +273,12 @@ class ClothSimulator:
 
     def reset(self) -> None:
         """Back to the rest shape at rest: positions, velocities, time, step count and the
-        energy-balance integrals. Pins, forces, gravity and material are kept."""
+        energy-balance integrals. Pins, forces, gravity and material are kept; grasp
+        handles let go (their offsets belong to the cloth before the reset)."""
+        for hid in list(self._handles.describe(self._time)):
+            self._handles.release(hid)
+        self._sync_pins()
+        self.control.pin_velocity[:] = 0.0
         self.state.assign(State.at_rest(self.mesh.vertices))
         self._time = 0.0
         self._steps = 0
@@ -279,26 +297,11 @@ class ClothSimulator:
             return
         backup = self.state.copy()
         cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
-        if cap == 0:
+        if cap == 0 and not len(self._handles):
             done = self.solver.step(n, self.state, self.control, self.coefficients,
                                     self._dt, self._vmax ** 2)
         else:
-            # moving obstacles: a pose per call of the compiled step, each call short
-            # enough that they move at most a quarter of the thickness (obstacles.py)
-            poses = self._obstacles.poses()
-            done = 0
-            while done < n:
-                k = min(cap, n - done)
-                got = self.solver.step(k, self.state, self.control, self.coefficients,
-                                       self._dt, self._vmax ** 2)
-                done += got
-                if got < k:
-                    break
-                self._obstacles.advance(k * self._dt)
-                self._sync_obstacles()
-            if done < n:
-                self._obstacles.restore(poses)
-                self._sync_obstacles()
+            done = self._step_in_calls(n, cap)
         if done < n:
             self.state.assign(backup)
             crit = self.critical_dt()
@@ -312,6 +315,77 @@ class ClothSimulator:
                                      hint)
         self._steps += n
         self._time += n * self._dt
+
+    def _step_in_calls(self, n: int, cap: int) -> int:
+        """``n`` steps as several calls of the compiled step: moving obstacles take a
+        pose per call, each call short enough that they move at most a quarter of the
+        thickness (:mod:`.obstacles`); moving handles a prescribed velocity per call that
+        ends it on their path (:mod:`.handles`); break forces are checked after each
+        call. Returns the steps done (fewer: a divergence; obstacles and handles then go
+        back to where the call began)."""
+        poses = self._obstacles.poses()
+        done = 0
+        while done < n:
+            k = n - done if cap == 0 else min(cap, n - done)
+            t = self._time + done * self._dt
+            if len(self._handles):
+                k = self._handles.plan(t, self._dt, k)
+            self._handles.prescribe(self.state.x, t, self._dt, k, self.control.pin_velocity)
+            got = self.solver.step(k, self.state, self.control, self.coefficients,
+                                   self._dt, self._vmax ** 2)
+            done += got
+            if got < k:
+                break
+            self._handles.settle(t + k * self._dt)
+            if len(self._handles) and len(self._handles.broken(self.control.reaction)):
+                self._sync_pins()
+            if cap:
+                self._obstacles.advance(k * self._dt)
+                self._sync_obstacles()
+        if not self._handles.moving(self._time + done * self._dt):
+            self.control.pin_velocity[:] = 0.0
+        if done < n and cap:
+            self._obstacles.restore(poses)
+            self._sync_obstacles()
+        return done
+
+    # ------------------------------------------------------------------ handles
+    def grasp(self, point=None, radius=None, vertices=None, name=None,
+              break_force=None) -> int:
+        """Grab the cloth: the vertices within ``radius`` [m] of ``point``, or the
+        ``vertices`` given (the handle's origin then ``point``, or their centroid), as
+        they are now. Returns the handle id; from now on they move rigidly with the
+        handle's pose (:meth:`move_handle`) and :meth:`handle_wrench` is what the handle
+        exerts on them. ``break_force`` [N]: each vertex holds at most its share of it
+        and slips out above. ``ValueError`` if nothing is within the radius, or a vertex
+        is held by another handle. Physics: :mod:`cosserat_ros.core.handles`."""
+        hid = self._handles.grasp(self.state.x, point, radius, vertices, name, break_force)
+        self._sync_pins()
+        return hid
+
+    def move_handle(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
+                    duration=None) -> None:
+        """Move handle ``id`` to ``position`` [m], ``orientation`` (quaternion x, y, z, w),
+        reached linearly (slerp for the orientation) over ``duration`` seconds of sim
+        time (default: over the next step). A new command starts from wherever the
+        handle is then."""
+        self._handles.move(id, self._time, self._dt, position, orientation, duration)
+
+    def handle_wrench(self, id):
+        """(force (3) [N], torque (3) [N m]) the handle exerted on the cloth over the last
+        step, world frame, torque about the handle's position (hanging at rest: the
+        weight it carries, upwards)."""
+        return self._handles.wrench(id, self.state.x, self.control.reaction)
+
+    @property
+    def handles(self) -> Dict[int, dict]:
+        """{id: description}: name, vertices, pose, whether it is moving, break force."""
+        return self._handles.describe(self._time)
+
+    def release(self, id) -> None:
+        """Let go: the vertices go back to the dynamics with the velocity they had."""
+        self._handles.release(id)
+        self._sync_pins()
 
     # ------------------------------------------------------------------ obstacles
     def add_obstacle(self, shape: str, friction=0.5, name: Optional[str] = None,

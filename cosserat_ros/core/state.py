@@ -14,7 +14,11 @@ field             shape / unit      meaning
                                     the applied forces, energy dissipated by damping
 ``Control.f_applied`` (n,3) [N]     nodal forces plus the force field ``m_i F``
 ``Control.gravity`` (3,) [m/s^2]    gravitational acceleration g
-``Control.pinned`` (n,) bool        vertices held at their position with zero velocity
+``Control.pinned`` (n,) bool        vertices whose motion is prescribed: pins and the
+                                    vertices grasp handles hold (:mod:`.handles`)
+``Control.pin_velocity`` (n,3)      their prescribed velocity [m/s] (zero for a pin)
+``Control.reaction`` (n,3) [N]      written by the step: the force the pin or handle
+                                    exerts on each of them
 ``Control.obstacles`` (k, W)        rigid obstacles, one row each (:mod:`.contact`)
 ``Control.sdf_meta`` (m, 8)         the mesh obstacles' distance grids: offset, shape,
                                     origin, spacing (:mod:`.contact`)
@@ -60,6 +64,8 @@ class Control(NamedTuple):
     f_applied: np.ndarray
     gravity: np.ndarray
     pinned: np.ndarray
+    pin_velocity: np.ndarray
+    reaction: np.ndarray
     obstacles: np.ndarray
     sdf_meta: np.ndarray
     sdf_data: np.ndarray
@@ -72,7 +78,7 @@ class Control(NamedTuple):
         contact = np.zeros((n, C_WIDTH))
         contact[:, 3] = -1.0
         return cls(np.zeros((n, 3)), np.zeros(3), np.zeros(n, dtype=bool),
-                   np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
+                   np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
                    np.array([float(thickness)]), contact)
 
     def with_obstacles(self, obstacles: np.ndarray, sdf_meta: np.ndarray,

@@ -9,7 +9,9 @@ For a free vertex i with lumped mass ``m_i = mu A_i`` and damping ``c_i = rho A_
 
 This is symplectic Euler (leapfrog with velocities at half steps): undamped runs keep a
 shadow energy, so the total energy oscillates by O(dt^2) instead of drifting. A pinned
-vertex keeps its position and zero velocity.
+vertex keeps its position and zero velocity; a vertex a grasp handle holds moves with
+the velocity the handle prescribes, and both report the force that took
+(:func:`_prescribed`).
 
 Contact (:mod:`..contact`) is part of the same update: with obstacles, every loop that
 calls :func:`advance_vertex` runs :func:`contact_range` over the same vertices right
@@ -38,6 +40,33 @@ __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
 
 @kernel(inline='always')
+def _prescribed(i, f0, f1, f2, x, v, control, m, c, dt):
+    """A pinned or held vertex: it moves with its prescribed velocity u
+    (``Control.pin_velocity``), and the force that takes, beyond the step's own forces f
+    (internal, applied, gravity, damping), is its reaction ``r = m (u - v) / dt - f``
+    (``Control.reaction``; :mod:`..handles`). Returns (the work of r [J], 0, 0)."""
+    u = control.pin_velocity
+    r = control.reaction
+    fa = control.f_applied
+    g = control.gravity
+    u0 = u[i, 0]
+    u1 = u[i, 1]
+    u2 = u[i, 2]
+    if dt > 0.0:
+        r[i, 0] = m * (u0 - v[i, 0]) / dt - (f0 + fa[i, 0] + m * g[0] - c * v[i, 0])
+        r[i, 1] = m * (u1 - v[i, 1]) / dt - (f1 + fa[i, 1] + m * g[1] - c * v[i, 1])
+        r[i, 2] = m * (u2 - v[i, 2]) / dt - (f2 + fa[i, 2] + m * g[2] - c * v[i, 2])
+    work = dt * (r[i, 0] * u0 + r[i, 1] * u1 + r[i, 2] * u2)
+    v[i, 0] = u0
+    v[i, 1] = u1
+    v[i, 2] = u2
+    x[i, 0] += dt * u0
+    x[i, 1] += dt * u1
+    x[i, 2] += dt * u2
+    return work, 0.0, 0
+
+
+@kernel(inline='always')
 def advance_vertex(i, f0, f1, f2, x, v, control, coeff, dt, vmax2):
     """Eq. 29 for vertex i with internal force f = (f0, f1, f2) [N], the users' controls
     (:class:`..state.Control`) and the material's masses and damping
@@ -45,12 +74,12 @@ def advance_vertex(i, f0, f1, f2, x, v, control, coeff, dt, vmax2):
     vertex went bad (non-finite or faster than sqrt(vmax2)) else 0); a pinned vertex
     stays put: (0, 0, 0)."""
     i = nb.uint64(i)        # no negative-index wrap-around on the ~15 loads and stores
-    if control.pinned[i]:
-        return 0.0, 0.0, 0
     f_applied = control.f_applied
     m = coeff.mass[i]
     c = coeff.damp[i]
     g = control.gravity
+    if control.pinned[i]:
+        return _prescribed(i, f0, f1, f2, x, v, control, m, c, dt)
     vo0 = v[i, 0]
     vo1 = v[i, 1]
     vo2 = v[i, 2]

@@ -1,0 +1,166 @@
+"""Grasp handles (cosserat_ros.core.handles): the reaction wrench against the static balance,
+prescribed motion, release and break force."""
+import math
+
+import numpy as np
+import pytest
+
+from cosserat_ros.mesh import grid_mesh
+from cosserat_ros.simulator import ClothSimulator, Material
+
+G = 9.81
+
+
+def _sim(n=12, side=0.5, damping=1.0, phi=1e-6):
+    sim = ClothSimulator(grid_mesh(n, n, width=side, height=side),
+                         Material(zeta=50.0, xi=2e-5, phi=phi, density=0.2,
+                                  damping=damping), dt=1e-5, check_dt=False)
+    sim.dt = 0.9 * sim.critical_dt()
+    sim.gravity = (0.0, 0.0, -G)
+    return sim
+
+
+def _corners(sim):
+    X = sim.mesh.vertices
+    top = X[:, 1].max()
+    return [np.array([X[:, 0].min(), top, 0.0]), np.array([X[:, 0].max(), top, 0.0])]
+
+
+def test_hanging_cloth_handles_carry_its_weight_and_balance_its_moment():
+    """At rest from two handles at the top corners: the wrench forces add up to the
+    weight, and with their torques they balance the moment of the weight about the
+    origin (the static balance of the whole cloth)."""
+    sim = _sim()
+    hs = [sim.grasp(point=c, radius=0.03) for c in _corners(sim)]
+    sim.step(int(round(6.0 / sim.dt)))
+    assert np.abs(sim.velocities).max() < 1e-4               # at rest
+    m = sim.coefficients.mass
+    weight = m.sum() * G
+    F = sum(sim.handle_wrench(h)[0] for h in hs)
+    assert F[2] == pytest.approx(weight, rel=0.01)
+    assert np.abs(F[:2]).max() < 1e-3 * weight
+    gravity_moment = np.cross(sim.positions, m[:, None] * np.array([0, 0, -G])).sum(0)
+    handles_moment = sum(np.cross(np.array(sim.handles[h]['position']),
+                                  sim.handle_wrench(h)[0]) + sim.handle_wrench(h)[1]
+                         for h in hs)
+    scale = np.abs(gravity_moment).max()
+    assert np.abs(handles_moment + gravity_moment).max() < 0.01 * scale
+
+
+def test_a_handle_at_constant_velocity_carries_its_vertices_rigidly():
+    """1 m/s on the shipped material: the held vertices keep their offsets to 1e-9, the
+    rest follows without blow-up."""
+    sim = _sim(20, 1.0, damping=0.1)
+    c = _corners(sim)[0]
+    h = sim.grasp(point=c, radius=0.06)
+    idx = sim.handles[h]['vertices']
+    offsets = sim.positions[idx] - c
+    target = c + np.array([0.3, 0.0, 0.4])          # 0.5 m in 0.5 s
+    sim.move_handle(h, target, duration=0.5)
+    for k in range(10):
+        sim.step(int(round(0.05 / sim.dt)))
+        p = np.array(sim.handles[h]['position'])
+        np.testing.assert_allclose(sim.positions[idx] - p, offsets, atol=1e-9)
+    assert np.linalg.norm(np.array(sim.handles[h]['position']) - target) < 1e-9
+    assert not sim.handles[h]['moving']
+    assert np.all(np.isfinite(sim.positions))
+
+
+def test_a_turning_handle_keeps_the_offsets_turned():
+    sim = _sim()
+    c = _corners(sim)[0]
+    h = sim.grasp(point=c, radius=0.05)
+    idx = sim.handles[h]['vertices']
+    off = sim.positions[idx] - c
+    a = 0.5
+    q = (0.0, 0.0, math.sin(a / 2), math.cos(a / 2))            # 0.5 rad about z
+    sim.move_handle(h, c, q, duration=0.2)
+    sim.step(int(round(0.3 / sim.dt)))
+    Rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    np.testing.assert_allclose(sim.positions[idx] - c, off @ Rz.T, atol=1e-9)
+
+
+def test_accelerating_handle_reports_weight_times_one_plus_a_over_g():
+    """A handle holding the whole top edge accelerates upwards at a = 2 m/s^2 (poses
+    streamed at 100 Hz along z = a t^2 / 2); once the transients have decayed its force,
+    averaged over every step of the last 0.3 s, is the rigid balance m (g + a) + C v: the
+    weight times (1 + a/g), plus the mass-proportional damping C = sum rho A_i on the
+    absolute velocity v = a t (zero with no damping; here it keeps the transients
+    short). The inertia m a is 8% of the total: the 2% bound sees it."""
+    sim = _sim(10, 0.3, damping=1.0)
+    X = sim.mesh.vertices
+    top = np.flatnonzero(np.isclose(X[:, 1], X[:, 1].max()))
+    h = sim.grasp(vertices=top, point=(0.0, X[:, 1].max(), 0.0))
+    sim.step(int(round(2.0 / sim.dt)))                   # hang at rest first
+    a, rate = 2.0, 100.0
+    p0 = np.array(sim.handles[h]['position'])
+    forces, expected, t0 = [], [], sim.time
+    mass, damp = sim.coefficients.mass.sum(), sim.coefficients.damp.sum()
+    for k in range(1, 151):                               # 1.5 s
+        t = k / rate
+        sim.move_handle(h, p0 + [0.0, 0.0, 0.5 * a * t * t], duration=1 / rate)
+        steps = int(round(1 / rate / sim.dt))
+        if t <= 1.2:
+            sim.step(steps)
+            continue
+        for _ in range(steps):
+            sim.step(1)
+            forces.append(sim.handle_wrench(h)[0][2])
+            expected.append(mass * (G + a) + damp * a * (sim.time - t0))
+    assert np.mean(forces) == pytest.approx(np.mean(expected), rel=0.02)
+    assert mass * a > 0.05 * np.mean(expected)
+
+
+def test_release_keeps_the_momentum_and_the_cloth_falls():
+    sim = _sim(10, 0.3, damping=0.0)
+    h = sim.grasp(point=_corners(sim)[0], radius=0.05)
+    sim.step(int(round(0.5 / sim.dt)))
+    c = np.array(sim.handles[h]['position'])
+    sim.move_handle(h, c + [0.5, 0.0, 0.0], duration=0.5)      # 1 m/s sideways
+    sim.step(int(round(0.25 / sim.dt)))
+    m = sim.coefficients.mass[:, None]
+    before = (m * sim.velocities).sum(0)
+    sim.release(h)
+    assert not sim.pinned.any()
+    sim.step(1)
+    after = (m * sim.velocities).sum(0)
+    # one step of gravity between the two
+    after_no_g = after - np.array([0, 0, -G]) * m.sum() * sim.dt
+    assert np.linalg.norm(after_no_g - before) < 0.01 * np.linalg.norm(before)
+    z = sim.positions[:, 2].mean()
+    sim.step(int(round(0.3 / sim.dt)))
+    assert sim.positions[:, 2].mean() < z - 0.3           # free fall, ~0.44 m in 0.3 s
+
+
+def test_a_break_force_below_the_weight_drops_the_cloth():
+    sim = _sim()
+    weight = sim.coefficients.mass.sum() * G
+    hs = [sim.grasp(point=c, radius=0.03, break_force=0.3 * weight) for c in _corners(sim)]
+    sim.step(int(round(1.0 / sim.dt)))
+    assert not sim.handles and not sim.pinned.any()
+    assert sim.positions[:, 2].max() < -0.5                 # falling
+    strong = _sim()
+    hs = [strong.grasp(point=c, radius=0.03, break_force=2 * weight)
+          for c in _corners(strong)]
+    strong.step(int(round(1.0 / strong.dt)))
+    assert set(strong.handles) == set(hs)
+
+
+def test_handle_api_refusals():
+    sim = _sim(6, 0.2)
+    with pytest.raises(ValueError, match='no vertex within'):
+        sim.grasp(point=(5.0, 5.0, 5.0), radius=0.01)
+    h = sim.grasp(vertices=[0, 1], name='left')
+    with pytest.raises(ValueError, match='held by another handle'):
+        sim.grasp(vertices=[1, 2])
+    with pytest.raises(ValueError, match='exists already'):
+        sim.grasp(vertices=[5], name='left')
+    with pytest.raises(ValueError, match='unit quaternion'):
+        sim.move_handle(h, (0, 0, 0), (0, 0, 0, 2))
+    with pytest.raises(ValueError, match='finite'):
+        sim.move_handle(h, (0, 0, float('nan')))
+    with pytest.raises(ValueError, match='no handle'):
+        sim.release(42)
+    sim.pin([3])
+    sim.release(h)
+    assert sorted(np.flatnonzero(sim.pinned)) == [3]      # a pin stays a pin
