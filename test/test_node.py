@@ -161,7 +161,7 @@ def test_bad_commands_rejected_and_simulation_keeps_running(h):
         h.send(kind, msg)
     assert sum(h.node.rejected.values()) == len(bad)
     assert h.node.rejected == {'vertex_forces': 8, 'point_forces': 3, 'force_field': 3,
-                               'obstacles': 0}
+                               'obstacles': 0, 'handles': 0}
     assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
     assert _steps(h) > before
     # a flood at kHz rates: all counted, nothing breaks
@@ -543,3 +543,62 @@ def test_table_config_reports_the_weight_on_the_table():
         node.destroy_node()
         peer.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+
+def _pose(p, q=(0.0, 0.0, 0.0, 1.0), frame='world'):
+    from geometry_msgs.msg import PoseStamped
+    m = PoseStamped()
+    m.header.frame_id = frame
+    m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(c) for c in p)
+    (m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+     m.pose.orientation.w) = (float(c) for c in q)
+    return m
+
+
+def test_handles_grasp_move_report_and_release_through_ros():
+    """A handle declared in the parameters, driven by a peer: a target places it, the
+    grasp service grabs the cloth there, targets move it, its wrench carries the cloth's
+    weight share, bad targets are refused, and release hands the cloth back."""
+    from geometry_msgs.msg import PoseStamped
+    h = Harness(**{'handles.names': ['left'], 'handles.left.radius': 0.08,
+                   'pinned.sets': ['none'], 'pinned.indices': [-1]})
+    target = h.peer.create_publisher(PoseStamped, '/cloth_node/handles/left/target', 10)
+    grasp = h.peer.create_client(SetBool, '/cloth_node/handles/left/grasp')
+    wrenches = []
+    h.peer.create_subscription(WrenchStamped, '/cloth_node/handles/left/wrench',
+                               wrenches.append, 10)
+
+    def call(flag):
+        fut = grasp.call_async(SetBool.Request(data=flag))
+        assert h.spin_until(fut.done, 10)
+        return fut.result()
+    try:
+        assert grasp.wait_for_service(timeout_sec=10)
+        res = call(True)
+        assert not res.success and 'no target' in res.message
+        corner = h.node.mesh.vertices[np.argmax(h.node.mesh.vertices @ [-1, 1, 0])]
+        target.publish(_pose(corner))
+        assert h.spin_until(lambda: h.node._handles['left']['target'] is not None, 5)
+        res = call(True)
+        assert res.success, res.message
+        hid = h.node._handles['left']['id']
+        assert hid in h.node.sim.handles
+        for k in range(1, 6):                        # up 1 cm per 50 ms: 0.2 m/s
+            target.publish(_pose(corner + [0.0, 0.0, 0.01 * k]))
+            h.spin(0.05)
+        assert h.spin_until(lambda: h.node.sim.handles[hid]['position'][2] > 0.03, 5)
+        assert h.spin_until(lambda: wrenches and wrenches[-1].wrench.force.z > 0, 5)
+        before = h.node.rejected['handles']
+        for bad in (_pose((float('nan'), 0, 0)), _pose(corner, frame='map'),
+                    _pose(corner, (0, 0, 0, 2)), _pose(corner + [5.0, 0, 0])):
+            target.publish(bad)
+            assert h.spin_until(lambda: h.node.rejected['handles'] > before, 5)
+            before = h.node.rejected['handles']
+        assert h.node.sim.handles[hid]['position'][0] < corner[0] + 1.0   # no teleport
+        res = call(False)
+        assert res.success and not h.node.sim.handles
+        h.spin(0.2)
+        assert h.node.diverged is None and np.all(np.isfinite(h.node.sim.positions))
+    finally:
+        h.close()

@@ -92,7 +92,8 @@ class HandleSet:
             return np.zeros(0, dtype=np.int64)
         return np.concatenate([h.idx for h in self._items.values()])
 
-    def grasp(self, x, point, radius, vertices, name, break_force) -> int:
+    def grasp(self, x, point, radius, vertices, name, break_force,
+              orientation=(0.0, 0.0, 0.0, 1.0)) -> int:
         n = len(x)
         if vertices is not None:
             idx = np.unique(np.asarray(vertices, dtype=np.int64).reshape(-1))
@@ -123,8 +124,9 @@ class HandleSet:
             raise ValueError(f'a handle named {name!r} exists already')
         h = _Handle()
         h.name, h.idx, h.break_force = name, idx, break_force
-        h.position, h.orientation = p.copy(), np.array([0.0, 0.0, 0.0, 1.0])
-        h.offsets = x[idx] - p
+        q = _quaternion(orientation)
+        h.position, h.orientation = p.copy(), q
+        h.offsets = (x[idx] - p) @ rotation_matrix(q)          # R^T (x - p), row-wise
         h.motion = None
         hid = self._next
         self._next += 1

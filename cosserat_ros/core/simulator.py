@@ -351,15 +351,17 @@ class ClothSimulator:
 
     # ------------------------------------------------------------------ handles
     def grasp(self, point=None, radius=None, vertices=None, name=None,
-              break_force=None) -> int:
+              break_force=None, orientation=(0.0, 0.0, 0.0, 1.0)) -> int:
         """Grab the cloth: the vertices within ``radius`` [m] of ``point``, or the
         ``vertices`` given (the handle's origin then ``point``, or their centroid), as
         they are now. Returns the handle id; from now on they move rigidly with the
         handle's pose (:meth:`move_handle`) and :meth:`handle_wrench` is what the handle
         exerts on them. ``break_force`` [N]: each vertex holds at most its share of it
-        and slips out above. ``ValueError`` if nothing is within the radius, or a vertex
-        is held by another handle. Physics: :mod:`cosserat_ros.core.handles`."""
-        hid = self._handles.grasp(self.state.x, point, radius, vertices, name, break_force)
+        and slips out above. ``orientation``: the handle frame's at the grasp (later
+        poses turn the offsets from it). ``ValueError`` if nothing is within the radius,
+        or a vertex is held by another handle. Physics: :mod:`cosserat_ros.core.handles`."""
+        hid = self._handles.grasp(self.state.x, point, radius, vertices, name, break_force,
+                                  orientation)
         self._sync_pins()
         return hid
 

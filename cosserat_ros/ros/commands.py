@@ -13,7 +13,8 @@ import numpy as np
 from ..core.surface_query import closest_points
 
 __all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field',
-           'obstacle_markers', 'obstacle_name', 'MAX_MARKERS', 'MAX_MESH_POINTS']
+           'obstacle_markers', 'obstacle_name', 'MAX_MARKERS', 'MAX_MESH_POINTS',
+           'handle_target']
 
 
 class CommandError(ValueError):
@@ -170,3 +171,19 @@ def obstacle_markers(msg, frame_id: str):
                 geometry = {'radius': s[0] / 2, 'half_length': s[2] / 2}
         ops.append(('add', name, shape, geometry, (p, q)))
     return ops
+
+
+def handle_target(msg, frame_id: str):
+    """A ``geometry_msgs/PoseStamped`` in ``frame_id`` (or an empty frame) -> (position
+    (3,), unit quaternion (4,)): finite, the quaternion of norm 1 within 1e-3."""
+    if msg.header.frame_id not in ('', frame_id):
+        raise CommandError(f'frame {msg.header.frame_id!r} is not {frame_id!r} (no tf here)')
+    p = np.array([msg.pose.position.x, msg.pose.position.y, msg.pose.position.z])
+    q = np.array([msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+                  msg.pose.orientation.w])
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise CommandError('non-finite pose')
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > 1e-3:
+        raise CommandError(f'orientation is not a unit quaternion (norm {n:.4g})')
+    return p, q / n

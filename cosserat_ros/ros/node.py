@@ -18,6 +18,9 @@ name                     type                                   direction
                                                                 cloth exerts on obstacle
                                                                 <name> (torque about its
                                                                 origin)
+``~/handles/<n>/target`` geometry_msgs/PoseStamped              in: handle <n>'s pose
+``~/handles/<n>/grasp``  std_srvs/SetBool                       service: grab / release
+``~/handles/<n>/wrench`` geometry_msgs/WrenchStamped            out, every tick
 ``~/reset``              std_srvs/Trigger                       service
 ``~/pause``              std_srvs/SetBool                       service
 =======================  =====================================  ============================
@@ -46,7 +49,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Vector3Stamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -59,8 +62,8 @@ from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, Simu
 from . import commands
 from .conversions import colormap, mesh_marker_array, percentile
 from .pacing import Pacer
-from .params import (check_choice, check_dt, COLORINGS, ConfigError, MATERIAL_KEYS,
-                     OBSTACLE_KEYS, obstacle_geometry, PARAMETERS, pin_set, pinned_indices,
+from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
+                     MATERIAL_KEYS, OBSTACLE_KEYS, obstacle_geometry, PARAMETERS, pin_set, pinned_indices,
                      RUNTIME_FLOATS, vec3)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
@@ -139,7 +142,7 @@ class ClothNode(Node):
         self._forces: Dict[str, Optional[_Force]] = {'vertex': None, 'point': None}
         self._field: Optional[Tuple[np.ndarray, float]] = None
         self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0,
-                         'obstacles': 0}
+                         'obstacles': 0, 'handles': 0}
         self.paused = False
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
@@ -169,6 +172,8 @@ class ClothNode(Node):
         self._last_obstacle_pub = -1.0
         for oid in self.sim.obstacles:
             self._add_wrench_pub(oid)
+        self._max_handle_speed = p['handles.max_speed']
+        self._handles = self._declared_handles(p['handles.names'], reliable)
         self.create_service(Trigger, '~/reset', self.on_reset)
         self.create_service(SetBool, '~/pause', self.on_pause)
         self.add_on_set_parameters_callback(self.validate_parameters)
@@ -234,6 +239,106 @@ class ClothNode(Node):
                 self.sim.add_obstacle(shape, friction=friction, name=name, **geometry)
             except ValueError as exc:
                 raise ConfigError(f'obstacle {name}: {exc}') from None
+
+    def _declared_handles(self, names, qos):
+        """The handles of ``handles.names``: their parameters, topics and service."""
+        names = [n for n in names if n]
+        if len(set(names)) != len(names):
+            raise ConfigError(f'handles.names has duplicates: {names}')
+        out = {}
+        for name in names:
+            cfg = {}
+            for key, default in HANDLE_KEYS.items():
+                full = f'handles.{name}.{key}'
+                try:
+                    self.declare_parameter(full, default, ParameterDescriptor(
+                        description=f'handle {name}: {key}', read_only=True))
+                except Exception as exc:
+                    raise ConfigError(f'parameter {full}: {exc}') from None
+                cfg[key] = self.get_parameter(full).value
+            if not (isinstance(cfg['radius'], float) and cfg['radius'] > 0):
+                raise ConfigError(f'handles.{name}.radius must be a positive float, got '
+                                  f'{cfg["radius"]!r}')
+            if not (isinstance(cfg['break_force'], float) and cfg['break_force'] >= 0):
+                raise ConfigError(f'handles.{name}.break_force must be a float >= 0 (0: '
+                                  f'none), got {cfg["break_force"]!r}')
+            h = {'radius': cfg['radius'], 'break_force': cfg['break_force'] or None,
+                 'id': None, 'target': None, 'received': None,
+                 'wrench': self.create_publisher(WrenchStamped, f'~/handles/{name}/wrench',
+                                                 qos)}
+            self.create_subscription(PoseStamped, f'~/handles/{name}/target',
+                                     lambda msg, n=name: self.on_handle_target(n, msg), 10)
+            self.create_service(SetBool, f'~/handles/{name}/grasp',
+                                lambda req, res, n=name: self.on_grasp(n, req, res))
+            out[name] = h
+        return out
+
+    def on_handle_target(self, name: str, msg: PoseStamped):
+        """A pose for handle ``name``: moves it there if it holds the cloth (reached over
+        the sim time since the previous target, at least one tick), else places it."""
+        h = self._handles[name]
+        try:
+            p, q = commands.handle_target(msg, self.frame_id)
+            now = self.sim.time
+            duration = self.period
+            if h['target'] is not None:
+                duration = min(max(now - h['received'], self.period), 1.0)
+                speed = float(np.linalg.norm(p - h['target'][0])) / duration
+                if h['id'] is not None and speed > self._max_handle_speed:
+                    raise commands.CommandError(
+                        f'target {speed:.3g} m/s from the last one, above handles.max_speed '
+                        f'{self._max_handle_speed:.3g}')
+        except commands.CommandError as exc:
+            self._reject('handles', f'{name}: {exc}')
+            return
+        h['target'], h['received'] = (p, q), now
+        if h['id'] is not None:
+            self.sim.move_handle(h['id'], p, q, duration=duration)
+
+    def on_grasp(self, name: str, request, response):
+        h = self._handles[name]
+        if request.data:
+            if h['id'] is not None:
+                response.success, response.message = True, f'{name} holds the cloth already'
+                return response
+            if h['target'] is None:
+                response.success = False
+                response.message = (f'no target for {name} yet: publish '
+                                    f'~/handles/{name}/target first')
+                return response
+            p, q = h['target']
+            try:
+                h['id'] = self.sim.grasp(point=p, radius=h['radius'], name=name,
+                                         break_force=h['break_force'], orientation=q)
+            except ValueError as exc:
+                response.success, response.message = False, str(exc)
+                return response
+            response.success = True
+            response.message = (f'{name} holds {len(self.sim.handles[h["id"]]["vertices"])} '
+                                'vertices')
+        else:
+            if h['id'] is not None and h['id'] in self.sim.handles:
+                self.sim.release(h['id'])
+            h['id'] = None
+            response.success, response.message = True, f'{name} released'
+        return response
+
+    def publish_handles(self, stamp: int):
+        sec, nsec = divmod(stamp, 1_000_000_000)
+        for name, h in self._handles.items():
+            if h['id'] is not None and h['id'] not in self.sim.handles:
+                h['id'] = None                       # it broke loose
+            f = t = np.zeros(3)
+            if h['id'] is not None:
+                f, t = self.sim.handle_wrench(h['id'])
+                if not (np.all(np.isfinite(f)) and np.all(np.isfinite(t))):
+                    continue
+            w = WrenchStamped()
+            w.header.stamp.sec, w.header.stamp.nanosec = sec, nsec
+            w.header.frame_id = self.frame_id
+            w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(c) for c in f)
+            w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(c) for c in t)
+            h['wrench'].publish(w)
 
     def _add_wrench_pub(self, oid: int):
         name = self.sim.obstacles[oid]['name']
@@ -430,6 +535,8 @@ class ClothNode(Node):
     # ------------------------------------------------------------------ services
     def on_reset(self, request, response):
         self.sim.reset()
+        for h in self._handles.values():
+            h['id'] = None
         self.diverged = None
         self.paused = False
         self._window = [time.monotonic(), 0.0]
@@ -475,6 +582,11 @@ class ClothNode(Node):
             elif name == 'coloring' and val not in COLORINGS:
                 return SetParametersResult(successful=False,
                                            reason=f'coloring must be one of {COLORINGS}')
+            elif name == 'handles.max_speed':
+                if not isinstance(val, float) or not (val > 0 and math.isfinite(val)):
+                    return SetParametersResult(successful=False,
+                                               reason='handles.max_speed must be a '
+                                                      'positive float')
             elif name == 'contact.thickness':
                 if not isinstance(val, float) or not (1e-5 <= val <= 0.1):
                     return SetParametersResult(
@@ -522,6 +634,8 @@ class ClothNode(Node):
                 self._status_period = val
             elif name == 'contact.thickness':
                 self.sim.contact_thickness = val
+            elif name == 'handles.max_speed':
+                self._max_handle_speed = val
         if changed_material:
             self.sim.material = Material(**mat)
 
@@ -603,6 +717,8 @@ class ClothNode(Node):
         self.energy_pub.publish(self.energy_message(stamp))
         if self._wrench_pubs:
             self.publish_contact(stamp)
+        if self._handles:
+            self.publish_handles(stamp)
         mono = time.monotonic()
         if self.sim.obstacles and (self._last_obstacle_pub < 0
                                    or mono - self._last_obstacle_pub >= 1.0):

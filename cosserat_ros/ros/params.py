@@ -18,7 +18,7 @@ from ..core.solvers.explicit import DIVERGENCE_METHODS
 
 __all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'pin_set',
            'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS',
-           'OBSTACLE_KEYS', 'obstacle_geometry']
+           'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -88,10 +88,20 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                  fp=_fp(0.0, 3600.0))),
     'contact.thickness': (0.002, _desc('Distance the cloth keeps from every obstacle [m]',
                                        fp=_fp(1e-5, 0.1))),
+    'handles.names': ([''], _desc('Grasp handles, each with ~/handles/<name>/grasp, '
+                                  '/target and /wrench; handles.<name>.radius [m] and '
+                                  "handles.<name>.break_force [N] (0 = none); [''] for none",
+                                  True)),
+    'handles.max_speed': (2.0, _desc('Fastest accepted handle target motion [m/s]: a target '
+                                     'further from the last one is refused',
+                                     fp=_fp(1e-3, 100.0))),
     'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
                                     'obstacles.<name>.shape and its geometry (README); '
                                     "[''] for none", True)),
 }
+
+#: the parameters of each declared handle, handles.<name>.<key>: key -> default
+HANDLE_KEYS = {'radius': 0.03, 'break_force': 0.0}
 
 #: the parameters of each declared obstacle, obstacles.<name>.<key>: key -> default
 OBSTACLE_KEYS = {
