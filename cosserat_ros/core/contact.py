@@ -81,7 +81,9 @@ PARAM = 19       # 19..21 radius / half extents / (radius, half length)
 MU_S = 22
 MU_K = 23
 FIELD = 24       # row of Control.sdf_meta (mesh)
-WIDTH = 25
+REACH = 25       # radius of a sphere about c that holds the obstacle (0: a plane)
+SPEED = 26       # the fastest any point of it within REACH moves [m/s]
+WIDTH = 27
 
 # Control.contact columns
 C_FORCE = 0
@@ -264,6 +266,20 @@ def _point_velocity(ob, k, x0, x1, x2):
             ob[k, VEL + 2] + w0 * r1 - w1 * r0)
 
 
+@kernel(inline='always')
+def _far(ob, k, x0, x1, x2, margin):
+    """Broad phase: x is further than ``margin`` from obstacle k's bounding sphere (never
+    for a plane), so neither contact nor a push is possible this step."""
+    reach = ob[k, REACH]
+    if reach <= 0.0:
+        return False
+    r0 = x0 - ob[k, POS]
+    r1 = x1 - ob[k, POS + 1]
+    r2 = x2 - ob[k, POS + 2]
+    lim = reach + margin
+    return r0 * r0 + r1 * r1 + r2 * r2 > lim * lim
+
+
 @kernel()
 def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     """The contact response of vertex i (module docstring) at old position x for its new
@@ -271,7 +287,9 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     ``meta``, ``data``) and thickness ``th``; writes row i of ``out``
     (``Control.contact``) and returns (v0, v1, v2, external work [J], dissipation [J])
     with v the velocity after contact. The caller then moves the vertex and puts it back
-    on the layer (:func:`push_out`). Only scalars and the contact arrays come in, so the
+    on the layer (:func:`push_out`). An obstacle whose bounding sphere is beyond the
+    vertex's reach this step (thickness plus the step's travel of both) is skipped
+    before its distance is evaluated. Only scalars and the contact arrays come in, so the
     step's position and velocity arrays stay private to its loop (no aliasing for LLVM
     to assume)."""
     b0 = v0
@@ -281,7 +299,10 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     gap = FAR
     work = 0.0
     diss = 0.0
+    s2 = v0 * v0 + v1 * v1 + v2 * v2
     for k in range(ob.shape[0]):
+        if _far(ob, k, x0, x1, x2, th + dt * (math.sqrt(s2) + ob[k, SPEED])):
+            continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
         gap = min(gap, d - th)
         o0, o1, o2 = _point_velocity(ob, k, x0, x1, x2)
@@ -333,6 +354,8 @@ def push_out(x0, x1, x2, ob, meta, data, th):
     """A vertex just moved to x, put back on the contact layer of every obstacle it is
     inside (along the normal; no velocity change): the corrected (x0, x1, x2)."""
     for k in range(ob.shape[0]):
+        if _far(ob, k, x0, x1, x2, th):
+            continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
         if d < th:
             x0 += (th - d) * n0

@@ -315,6 +315,12 @@ class ObstacleSet:
                 datas.append(values)
                 offset += len(values)
             row[C.MU_S], row[C.MU_K] = o.friction
+            reach = 0.0 if o.shape == 'plane' else self._reach(o)
+            if o.shape == 'mesh':
+                reach += FIELD_MARGIN_CELLS * o.field[3]
+            row[C.REACH] = reach
+            row[C.SPEED] = (float(np.linalg.norm(o.velocity))
+                            + float(np.linalg.norm(o.omega)) * reach)
             rows.append(row)
             ids.append(oid)
         self.table = np.array(rows).reshape(-1, C.WIDTH)
