@@ -502,6 +502,28 @@ def test_obstacles_from_markers_are_added_moved_refused_and_deleted():
             assert h.spin_until(lambda: h.node.rejected['obstacles'] > before, 5), m
             before = h.node.rejected['obstacles']
         assert set(d['name'] for d in h.node.sim.obstacles.values()) == set(names)
+        # mesh markers: a closed mesh becomes an obstacle; another new mesh right after
+        # it is refused (one distance field per MESH_BUILD_PERIOD), the same mesh moves
+        import trimesh
+        box = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+        pts = [Point(x=float(a), y=float(b), z=float(c))
+               for a, b, c in box.vertices[box.faces.reshape(-1)]]
+        mesh = _marker('m', 4, Marker.TRIANGLE_LIST, scale=(1, 1, 1), pos=(0, 0, -2.0))
+        mesh.points = pts
+        pub.publish(_markers(mesh))
+        # (on a cold cache the field's kernels compile in this first call)
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 3, 120)
+        other = _marker('m', 5, Marker.TRIANGLE_LIST, scale=(1, 1, 1), pos=(0, 0, -3.0))
+        other.points = pts
+        pub.publish(_markers(other))
+        assert h.spin_until(lambda: h.node.rejected['obstacles'] > before, 5)
+        mesh.pose.position.z = -2.5
+        pub.publish(_markers(mesh))
+        assert h.spin_until(lambda: any(d['position'][2] == -2.5
+                                        for d in h.node.sim.obstacles.values()), 5)
+        assert len(h.node.sim.obstacles) == 3
+        pub.publish(_markers(_marker('m', 4, action=Marker.DELETE)))
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 2, 5)
         pub.publish(_markers(_marker(action=Marker.DELETE)))
         assert h.spin_until(lambda: len(h.node.sim.obstacles) == 1, 5)
         pub.publish(_markers(_marker(action=Marker.DELETEALL)))

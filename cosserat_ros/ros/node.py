@@ -69,6 +69,15 @@ from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 
 
+#: [s] wall time between two distance-field builds for mesh markers on ~/obstacles (each
+#: costs up to ~1 s of the callback thread: commands.MAX_MESH_POINTS, obstacles.py)
+MESH_BUILD_PERIOD = 2.0
+
+
+def _marker_key(shape, geometry):
+    return (shape, {k: np.asarray(v).tobytes() for k, v in geometry.items()})
+
+
 def _angular_velocity(q0, q1, dt: float) -> np.ndarray:
     """The constant angular velocity [rad/s, world frame] turning unit quaternion q0
     (x, y, z, w) into q1 in dt seconds: the axis-angle of q1 q0^-1 over dt."""
@@ -170,6 +179,7 @@ class ClothNode(Node):
         self.obstacle_pub = self.create_publisher(MarkerArray, '~/obstacle_markers',
                                                   reliable)
         self._last_obstacle_pub = -1.0
+        self._last_field_build = -math.inf
         for oid in self.sim.obstacles:
             self._add_wrench_pub(oid)
         self._max_handle_speed = p['handles.max_speed']
@@ -353,6 +363,18 @@ class ClothNode(Node):
         except commands.CommandError as exc:
             self._reject('obstacles', str(exc))
             return
+        builds = sum(1 for op in ops if op[0] == 'add' and op[2] == 'mesh'
+                     and not self._same_marker(op))
+        wall = time.monotonic()
+        if builds and wall - self._last_field_build < MESH_BUILD_PERIOD:
+            self._reject('obstacles', f'a new mesh obstacle {wall - self._last_field_build:.2f}'
+                                      f' s after the last one (at most one per '
+                                      f'{MESH_BUILD_PERIOD} s: each builds a distance field)')
+            return
+        if builds > 1:
+            self._reject('obstacles', f'{builds} new mesh obstacles in one message (one at '
+                                      'a time: each builds a distance field)')
+            return
         snap = self.sim.obstacle_snapshot()
         seen = dict(self._marker_seen)
         now = self.sim.time
@@ -365,6 +387,8 @@ class ClothNode(Node):
             self.sim.restore_obstacles(snap)
             self._reject('obstacles', str(exc))
             return
+        if builds:                 # a refused mesh stops before its field: cheap
+            self._last_field_build = wall
         self._marker_seen = {oid: v for oid, v in seen.items() if oid in self.sim.obstacles}
         for oid in list(self._wrench_pubs):
             if oid not in self.sim.obstacles:
@@ -373,6 +397,14 @@ class ClothNode(Node):
             if oid not in self._wrench_pubs:
                 self._add_wrench_pub(oid)
         self._last_obstacle_pub = -1.0               # republish at the next tick
+
+    def _same_marker(self, op) -> bool:
+        """An ADD for a marker obstacle that exists with this very shape and geometry (a
+        move, no new distance field)."""
+        oid = self.sim.find_obstacle(op[1])
+        if oid is None or oid not in self._marker_seen:
+            return False
+        return self._marker_seen[oid][3] == _marker_key(op[2], op[3])
 
     def _apply_obstacle_op(self, op, seen, now):
         if op[0] == 'deleteall':
@@ -390,7 +422,7 @@ class ClothNode(Node):
         _, name, shape, geometry, (p, q) = op
         if oid is not None and oid not in seen:
             raise ValueError(f'{name} is a declared obstacle, not a marker\'s')
-        key = (shape, {k: np.asarray(v).tobytes() for k, v in geometry.items()})
+        key = _marker_key(shape, geometry)
         if oid is not None and seen[oid][3] == key:
             t0, p0, q0, _ = seen[oid]
             dt = now - t0
