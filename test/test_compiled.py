@@ -42,7 +42,10 @@ phi = 1e-6 if sys.argv[2] == 'coupled' else 0.0
 s = ClothSimulator(grid_mesh(6, 5), Material(zeta=93.75, xi=1e-4 / 6, phi=phi, density=0.1),
                    dt=1e-5, check_dt=False)
 energy.report(s.model, s.coefficients, s.state, s.control, s.dt, s._scratch, s.state.x * 0)
-loaded = [jet.vertex_energies, energy.densities, energy.totals]
+from cosserat_ros.core.solvers.update import contact_range
+import numpy as np
+contact_range(np.int64(0), np.int64(0), s.state.x, s.state.v, s.control, s.coefficients, s.dt)
+loaded = [jet.vertex_energies, energy.densities, energy.totals, contact_range]
 m, v = s.model, s.solver
 if sys.argv[1] == 'tiled':
     run = step.elastic_forces_coupled if phi else step.elastic_forces

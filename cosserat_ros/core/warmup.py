@@ -7,8 +7,9 @@ step (``fast/step.py``), the energy report (``core/energy.py`` and the terms' ke
 and the force behind the critical dt. Most of the step's compile is its vertex pass, which
 the small meshes' one-region step shares with the critical dt's force (one step of
 dt = 0); the tiled step (large meshes) has a vertex pass of its own. :func:`start` has a
-second process compile, meanwhile, what does not depend on the step: the energy report,
-and the tiled step's critical-dt force.
+second process compile, meanwhile, what does not depend on the step: the contact pass
+that every step calls (a kernel of its own), the energy report, and the tiled step's
+critical-dt force.
 
 numba looks a kernel up in its cache whenever it is about to compile it, for itself or as
 the callee of another kernel, so the node loads what the second process finished in
@@ -147,6 +148,10 @@ def _compile(tiled: bool, coupled: bool):
                                                    phi=1e-6 if coupled else 0.0,
                                                    density=0.2, damping=0.1),
                          dt=1e-5, check_dt=False)
+    # the contact pass, which every step calls (a kernel of its own, int64 bounds)
+    from .solvers.update import contact_range
+    contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v, sim.control,
+                  sim.coefficients, sim.dt)
     # the report's own kernels (its internal force is the step's, which the node compiles)
     energy.report(sim.model, sim.coefficients, sim.state, sim.control, sim.dt, sim._scratch,
                   np.zeros((sim.n_vertices, 3)))

@@ -156,8 +156,9 @@ def _update_chunk(c, size, vf_ptr, vf_row, tr_ptr, tr_slot, frow, contrib, x, v,
         diss += d
         bad += b
     if control.obstacles.shape[0] > 0:
-        w, d = contact_range(c * size, min(x.shape[0], (c + 1) * size), x, v, control,
-                             coeff, dt)
+        # int64 bounds: the signature the cold start's second process compiles
+        w, d = contact_range(nb.int64(c * size), nb.int64(min(x.shape[0], (c + 1) * size)),
+                             x, v, control, coeff, dt)
         work += w
         diss += d
     part[c, 0] = work

@@ -59,8 +59,8 @@ def advance_all(x, v, force, control, coeff, dt, vmax2, part, acc):
             d += dd
             b += db
         if control.obstacles.shape[0] > 0:
-            dw, dd = contact_range(c * size, min(n, (c + 1) * size), x, v, control, coeff,
-                                   dt)
+            dw, dd = contact_range(nb.int64(c * size), nb.int64(min(n, (c + 1) * size)), x,
+                                   v, control, coeff, dt)
             w += dw
             d += dd
         part[c, 0] = w
