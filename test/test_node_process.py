@@ -200,3 +200,69 @@ def test_bad_params_file_fails_with_one_line(tmp_path, text, match):
     assert 'Traceback' not in err + out
     lines = [ln for ln in err.strip().splitlines() if 'error' in ln.lower()]
     assert lines and match in lines[-1], err
+
+
+HOSTILE = PARAMS + """    handles:
+      names: [left]
+    obstacles:
+      names: [ground]
+      ground: {shape: plane, point: [0.0, 0.0, -1.0]}
+"""
+
+
+def test_a_hostile_peer_cannot_stall_the_node_through_obstacles_and_handles(tmp_path,
+                                                                            client):
+    """Another process floods ~/obstacles with oversized and bad marker arrays and
+    ~/handles/left/target with bad poses: each is refused at bounded cost (an oversized
+    message unread, by its size), so the node keeps publishing its mesh and never a NaN,
+    counts the refusals in /diagnostics, and stops cleanly."""
+    from geometry_msgs.msg import Point, PoseStamped
+    from visualization_msgs.msg import Marker
+    node, ex = client
+    params = tmp_path / 'hostile.yaml'
+    params.write_text(HOSTILE)
+    meshes, diags = [], []
+    node.create_subscription(MarkerArray, '/cloth_node/mesh',
+                             lambda m: meshes.append(time.monotonic()), 200, raw=True)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    obstacles = node.create_publisher(MarkerArray, '/cloth_node/obstacles', 10)
+    target = node.create_publisher(PoseStamped, '/cloth_node/handles/left/target', 10)
+    big = Marker()
+    big.header.frame_id = 'world'
+    big.ns, big.id, big.type = 'big', 1, Marker.TRIANGLE_LIST
+    big.pose.orientation.w = 1.0
+    big.scale.x = big.scale.y = big.scale.z = 1.0
+    big.points = [Point(x=float(i), y=0.0, z=0.0) for i in range(120_000)]  # 2.9 MB
+    huge = MarkerArray(markers=[big])
+    nan = Marker()
+    nan.header.frame_id = 'world'
+    nan.type, nan.pose.position.x = Marker.SPHERE, float('nan')
+    many = MarkerArray(markers=[nan] * 200)
+    bad_pose = PoseStamped()
+    bad_pose.header.frame_id = 'world'
+    bad_pose.pose.orientation.w = 3.0
+    proc = start(params)
+    try:
+        assert spin_until(ex, lambda: len(meshes) >= 3, 90.0), 'no mesh from cloth_node'
+        meshes.clear()
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            obstacles.publish(huge)
+            obstacles.publish(many)
+            for _ in range(20):
+                target.publish(bad_pose)
+            spin_until(ex, lambda: False, 0.05)
+        rate = len(meshes) / 3.0
+        assert rate >= 0.5 * RATE, rate
+        diags.clear()
+        assert spin_until(ex, lambda: len(diags) > 0, 5.0)
+        vals = {kv.key: kv.value for kv in diags[-1].status[0].values}
+        # every message that reached the node was refused (a flood overruns the keep-last
+        # queues, so fewer arrive than were sent: the counts only have to be there)
+        assert int(vals['rejected_obstacles']) > 0 and int(vals['rejected_handles']) > 0
+        assert int(vals['obstacles']) == 1
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out

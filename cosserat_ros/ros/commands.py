@@ -107,10 +107,13 @@ def obstacle_markers(msg, frame_id: str):
     y, z), CUBE (full extents = scale), CYLINDER (diameter scale.x = scale.y, height
     scale.z), TRIANGLE_LIST (points in the marker's frame, a closed mesh); every marker
     in ``frame_id`` (or an empty frame); at most :data:`MAX_MARKERS` markers and
-    :data:`MAX_MESH_POINTS` points per mesh. Any bad marker refuses the whole message."""
+    :data:`MAX_MESH_POINTS` points in all. Any bad marker refuses the whole message."""
     markers = list(msg.markers)
     if len(markers) > MAX_MARKERS:
         raise CommandError(f'{len(markers)} markers, at most {MAX_MARKERS} per message')
+    points = sum(len(m.points) for m in markers)
+    if points > MAX_MESH_POINTS:
+        raise CommandError(f'{points} points in all, at most {MAX_MESH_POINTS} per message')
     ops = []
     for m in markers:
         where = f'marker {m.ns!r}/{m.id}'

@@ -47,6 +47,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
@@ -68,6 +69,10 @@ from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 
+
+#: the largest serialised ~/obstacles message [bytes]: commands.MAX_MESH_POINTS points
+#: (24 bytes each) and commands.MAX_MARKERS markers' headers, with room to spare
+MAX_OBSTACLE_BYTES = 24 * 30_000 + 64 * 512
 
 #: [s] wall time between two distance-field builds for mesh markers on ~/obstacles (each
 #: costs up to ~1 s of the callback thread: commands.MAX_MESH_POINTS, obstacles.py)
@@ -175,7 +180,9 @@ class ClothNode(Node):
                                  10)
         self.create_subscription(Float64MultiArray, '~/point_forces', self.on_point_forces, 10)
         self.create_subscription(Vector3Stamped, '~/force_field', self.on_force_field, 10)
-        self.create_subscription(MarkerArray, '~/obstacles', self.on_obstacles, 10)
+        # raw: a message's size is checked before rclpy builds a Python object per point
+        self.create_subscription(MarkerArray, '~/obstacles', self.on_obstacles_raw, 10,
+                                 raw=True)
         self.obstacle_pub = self.create_publisher(MarkerArray, '~/obstacle_markers',
                                                   reliable)
         self._last_obstacle_pub = -1.0
@@ -353,6 +360,21 @@ class ClothNode(Node):
     def _add_wrench_pub(self, oid: int):
         name = self.sim.obstacles[oid]['name']
         self._wrench_pubs[oid] = self.create_publisher(WrenchStamped, f'~/contact/{name}', 5)
+
+    def on_obstacles_raw(self, data: bytes):
+        """The serialised ``~/obstacles`` message: refused unread above
+        :data:`MAX_OBSTACLE_BYTES` (bounded work per message: rclpy would otherwise build
+        a Python object for each of its points first), else :meth:`on_obstacles`."""
+        if len(data) > MAX_OBSTACLE_BYTES:
+            self._reject('obstacles', f'message of {len(data)} bytes, at most '
+                                      f'{MAX_OBSTACLE_BYTES}')
+            return
+        try:
+            msg = deserialize_message(data, MarkerArray)
+        except Exception as exc:                      # a malformed serialisation
+            self._reject('obstacles', f'undecodable message: {exc}')
+            return
+        self.on_obstacles(msg)
 
     def on_obstacles(self, msg: MarkerArray):
         """Markers -> obstacles (:func:`.commands.obstacle_markers`), all or none: ADD
