@@ -81,6 +81,20 @@ def test_marker_array_without_optional_markers():
     assert len(msg.markers) == 1
 
 
+def test_handles_are_their_own_sphere_list():
+    mesh = grid_mesh(3, 3)
+    col = colormap(np.zeros(mesh.n_vertices), 0, 1)
+    handles = np.array([[0.1, 0.2, 0.3], [-0.4, 0.5, 0.6]])
+    msg = deserialize_message(mesh_marker_array(mesh.vertices, mesh.faces, col, 0, 'w',
+                                                pinned=np.array([0, 3]), pin_size=0.01,
+                                                handles=handles), MarkerArray)
+    assert [m.id for m in msg.markers] == [0, 2, 3]
+    m = msg.markers[2]
+    assert m.type == Marker.SPHERE_LIST and m.scale.x == pytest.approx(0.03)
+    np.testing.assert_array_equal([[p.x, p.y, p.z] for p in m.points], handles)
+    assert m.header.frame_id == 'w' and m.ns == 'cloth'
+
+
 def test_colormap_range_and_degenerate_span():
     c = colormap(np.array([-1.0, 0.0, 0.5, 1.0, 2.0, np.nan]), 0.0, 1.0, alpha=0.5)
     assert c.dtype == np.float32 and c.shape == (6, 4)

@@ -611,6 +611,10 @@ def test_handles_grasp_move_report_and_release_through_ros():
             h.spin(0.05)
         assert h.spin_until(lambda: h.node.sim.handles[hid]['position'][2] > 0.03, 5)
         assert h.spin_until(lambda: wrenches and wrenches[-1].wrench.force.z > 0, 5)
+        # drawn in ~/mesh: its own SPHERE_LIST (id 3) at the handle's origin
+        assert h.spin_until(lambda: any(m.id == 3 for m in h.meshes[-1].markers), 5)
+        drawn = next(m for m in h.meshes[-1].markers if m.id == 3).points[0]
+        assert drawn.z > 0.03
         before = h.node.rejected['handles']
         for bad in (_pose((float('nan'), 0, 0)), _pose(corner, frame='map'),
                     _pose(corner, (0, 0, 0, 2)), _pose(corner + [5.0, 0, 0])):

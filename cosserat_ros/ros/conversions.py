@@ -22,13 +22,13 @@ import numpy as np
 
 __all__ = ['CdrWriter', 'mesh_marker_array', 'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
-           'PINS_ID']
+           'PINS_ID', 'HANDLES_ID']
 
 TRIANGLE_LIST = 11
 LINE_LIST = 5
 SPHERE_LIST = 7
 MARKER_NAMESPACE = 'cloth'
-MESH_ID, WIREFRAME_ID, PINS_ID = 0, 1, 2
+MESH_ID, WIREFRAME_ID, PINS_ID, HANDLES_ID = 0, 1, 2, 3
 
 
 class CdrWriter:
@@ -111,7 +111,9 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
                       stamp_ns: int, frame_id: str, edges: Optional[np.ndarray] = None,
                       pinned: Optional[np.ndarray] = None, pin_size: float = 0.02,
                       wire_color=(0.1, 0.1, 0.1, 1.0),
-                      pin_color=(0.9, 0.2, 0.1, 1.0)) -> bytes:
+                      pin_color=(0.9, 0.2, 0.1, 1.0),
+                      handles: Optional[np.ndarray] = None,
+                      handle_color=(0.1, 0.8, 0.3, 1.0)) -> bytes:
     """Serialised ``visualization_msgs/MarkerArray`` of the cloth.
 
     Parameters
@@ -121,7 +123,10 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     vertex_colors : (n, 4) float32 RGBA in [0, 1] per vertex.
     stamp_ns : header stamp [ns] (simulation time).
     edges : (e, 2) int64 or None; a LINE_LIST wireframe (id 1) when given.
-    pinned : (k,) int64 or None; a SPHERE_LIST of pinned vertices (id 2) when non-empty.
+    pinned : (k,) int64 or None; a SPHERE_LIST of pinned vertices (id 2) when non-empty
+        (the vertices grasp handles hold are pinned too).
+    handles : (h, 3) float64 or None; the grasp handles' origins as a SPHERE_LIST (id 3,
+        three times the pin size) when non-empty.
 
     Marker 0 is a TRIANGLE_LIST with one point and one colour per triangle corner, unit
     scale and an opaque base colour (RViz needs a non-zero ``color.a`` even with per-vertex
@@ -130,7 +135,8 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     corners = faces.reshape(-1)
     # np.take, not positions[corners]: numpy's fancy indexing of rows is much slower
-    markers = 1 + (edges is not None) + (pinned is not None and len(pinned) > 0)
+    markers = (1 + (edges is not None) + (pinned is not None and len(pinned) > 0)
+               + (handles is not None and len(handles) > 0))
     w = CdrWriter()
     w.prim('I', markers)
     _marker(w, sec, nanosec, frame_id, MESH_ID, TRIANGLE_LIST, 1.0, (1.0, 1.0, 1.0, 1.0),
@@ -141,6 +147,9 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     if pinned is not None and len(pinned) > 0:
         _marker(w, sec, nanosec, frame_id, PINS_ID, SPHERE_LIST, pin_size, pin_color,
                 positions[pinned], None)
+    if handles is not None and len(handles) > 0:
+        _marker(w, sec, nanosec, frame_id, HANDLES_ID, SPHERE_LIST, 3 * pin_size,
+                handle_color, np.ascontiguousarray(handles, dtype=np.float64), None)
     return w.bytes()
 
 

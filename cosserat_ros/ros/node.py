@@ -767,7 +767,8 @@ class ClothNode(Node):
         self.mesh_pub.publish(mesh_marker_array(
             x, self.mesh.faces, self.vertex_colors(), stamp, self.frame_id,
             edges=self.mesh.edges if self._wireframe else None, pinned=pinned,
-            pin_size=0.3 * self.mesh.mean_edge_length))
+            pin_size=0.3 * self.mesh.mean_edge_length,
+            handles=np.array([d['position'] for d in self.sim.handles.values()])))
         self.energy_pub.publish(self.energy_message(stamp))
         if self._wrench_pubs:
             self.publish_contact(stamp)
