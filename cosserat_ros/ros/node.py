@@ -233,22 +233,33 @@ class ClothNode(Node):
                 raise
             raise ConfigError(f'mesh: {exc}') from None
 
+    @staticmethod
+    def _group_names(group: str, names) -> list:
+        """The non-empty names of ``<group>.names``, refused if one repeats."""
+        names = [n for n in names if n]
+        if len(set(names)) != len(names):
+            raise ConfigError(f'{group}.names has duplicates: {names}')
+        return names
+
+    def _declare_group(self, group: str, name: str, keys: dict, what: str) -> dict:
+        """Declare ``<group>.<name>.<key>`` (read-only, default ``keys[key]``) for every
+        key and return their values."""
+        values = {}
+        for key, default in keys.items():
+            full = f'{group}.{name}.{key}'
+            try:
+                self.declare_parameter(full, default, ParameterDescriptor(
+                    description=f'{what} {name}: {key}', read_only=True))
+            except Exception as exc:   # rclpy's InvalidParameter*Exception family
+                raise ConfigError(f'parameter {full}: {exc}') from None
+            values[key] = self.get_parameter(full).value
+        return values
+
     def _declared_obstacles(self, names):
         """The obstacles of the parameters (``obstacles.names`` and, for each,
         ``obstacles.<name>.<key>``, :data:`.params.OBSTACLE_KEYS`)."""
-        names = [n for n in names if n]
-        if len(set(names)) != len(names):
-            raise ConfigError(f'obstacles.names has duplicates: {names}')
-        for name in names:
-            values = {}
-            for key, default in OBSTACLE_KEYS.items():
-                full = f'obstacles.{name}.{key}'
-                try:
-                    self.declare_parameter(full, default, ParameterDescriptor(
-                        description=f'obstacle {name}: {key}', read_only=True))
-                except Exception as exc:   # rclpy's InvalidParameter*Exception family
-                    raise ConfigError(f'parameter {full}: {exc}') from None
-                values[key] = self.get_parameter(full).value
+        for name in self._group_names('obstacles', names):
+            values = self._declare_group('obstacles', name, OBSTACLE_KEYS, 'obstacle')
             shape, friction, geometry = obstacle_geometry(name, values)
             if 'file' in geometry:
                 geometry['file'] = self._mesh_path(geometry['file'])
@@ -259,20 +270,9 @@ class ClothNode(Node):
 
     def _declared_handles(self, names, qos):
         """The handles of ``handles.names``: their parameters, topics and service."""
-        names = [n for n in names if n]
-        if len(set(names)) != len(names):
-            raise ConfigError(f'handles.names has duplicates: {names}')
         out = {}
-        for name in names:
-            cfg = {}
-            for key, default in HANDLE_KEYS.items():
-                full = f'handles.{name}.{key}'
-                try:
-                    self.declare_parameter(full, default, ParameterDescriptor(
-                        description=f'handle {name}: {key}', read_only=True))
-                except Exception as exc:
-                    raise ConfigError(f'parameter {full}: {exc}') from None
-                cfg[key] = self.get_parameter(full).value
+        for name in self._group_names('handles', names):
+            cfg = self._declare_group('handles', name, HANDLE_KEYS, 'handle')
             if not (isinstance(cfg['radius'], float) and cfg['radius'] > 0):
                 raise ConfigError(f'handles.{name}.radius must be a positive float, got '
                                   f'{cfg["radius"]!r}')
@@ -342,8 +342,9 @@ class ClothNode(Node):
 
     def publish_handles(self, stamp: int):
         sec, nsec = divmod(stamp, 1_000_000_000)
+        held = self.sim.handles
         for name, h in self._handles.items():
-            if h['id'] is not None and h['id'] not in self.sim.handles:
+            if h['id'] is not None and h['id'] not in held:
                 h['id'] = None                       # it broke loose
             f = t = np.zeros(3)
             if h['id'] is not None:
@@ -567,8 +568,9 @@ class ClothNode(Node):
     def _expire_forces(self, now: float):
         if self._force_timeout <= 0:
             return
+        described = self.sim.obstacles if self._marker_seen else {}
         for oid, (t0, p0, q0, key) in self._marker_seen.items():
-            d = self.sim.obstacles.get(oid)
+            d = described.get(oid)
             if (d is not None and self.sim.time - t0 > self._force_timeout
                     and any(d['linear_velocity'] + d['angular_velocity'])):
                 self.sim.set_obstacle_pose(oid, d['position'], d['orientation'])
