@@ -10,12 +10,21 @@ import pytest
 from cosserat_ros.core import compiled
 
 
-def test_every_python_file_of_the_package_is_hashed():
+def test_every_file_that_can_hold_a_kernel_is_hashed():
     files = compiled.kernel_sources()
     for name in ('core/terms/jet.py', 'core/solvers/update.py', 'fast/step.py',
                  'fast/lanes.py', 'core/compiled.py'):
         assert name in files
     assert not any('__pycache__' in f for f in files)
+    # the files left out (ROS layer, tools, re-exports) compile nothing
+    for root, dirs, names in os.walk(compiled.PACKAGE_DIR):
+        dirs[:] = [d for d in dirs if d != '__pycache__']
+        for n in names:
+            rel = os.path.relpath(os.path.join(root, n), compiled.PACKAGE_DIR)
+            if n.endswith('.py') and rel not in files:
+                text = open(os.path.join(root, n)).read()
+                assert not any(k in text for k in ('njit', 'kernel(', 'numba.jit',
+                                                   '@nb.', 'vectorize')), rel
 
 
 _STARTS = """
@@ -142,6 +151,8 @@ def test_warmup_lock_is_taken_once_and_a_stale_one_replaced(tmp_path):
 def test_stale_cache_is_removed_when_any_source_changes(tmp_path):
     pkg = tmp_path / 'pkg'
     (pkg / 'core' / 'terms').mkdir(parents=True)
+    (pkg / 'ros').mkdir()
+    (pkg / 'ros' / 'node.py').write_text('# node\n')
     (pkg / 'fast').mkdir()
     for name in ('core/terms/jet.py', 'fast/step.py', 'core/compiled.py'):
         (pkg / name).write_text(f'# {name}\n')
@@ -154,6 +165,8 @@ def test_stale_cache_is_removed_when_any_source_changes(tmp_path):
     (cached[0].parent / 'other.pyc').write_bytes(b'x')
     assert not compiled.invalidate_stale_cache(str(pkg))   # unchanged: kept
     assert all(f.exists() for f in cached)
+    (pkg / 'ros' / 'node.py').write_text('# no kernel here\n')
+    assert not compiled.invalidate_stale_cache(str(pkg))   # the ROS layer: kept
     # only the callee's file changes (the case numba's own check misses)
     (pkg / 'core' / 'terms' / 'jet.py').write_text('# changed\n')
     assert compiled.invalidate_stale_cache(str(pkg))
@@ -162,7 +175,8 @@ def test_stale_cache_is_removed_when_any_source_changes(tmp_path):
 
 
 def test_unwritable_cache_is_left_alone(tmp_path):
-    (tmp_path / 'a.py').write_text('\n')
+    (tmp_path / 'core').mkdir()
+    (tmp_path / 'core' / 'a.py').write_text('\n')
     (tmp_path / '__pycache__').write_text('not a directory')   # cannot hold a cache
     assert not compiled.invalidate_stale_cache(str(tmp_path))
     assert (tmp_path / '__pycache__').read_text() == 'not a directory'

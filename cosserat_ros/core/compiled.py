@@ -27,9 +27,10 @@ calls kernels of another file (the step in ``fast/step.py`` inlines the terms of
 ``core/terms/``) keeps its cached machine code when only the callee's file changes, and an
 install that preserves time stamps (``setup.py install`` copies them) can leave such a
 stale step behind. On import, :func:`invalidate_stale_cache` therefore hashes every Python
-file of the package and, when the hash differs from the one stored beside the cache,
-removes the package's cached kernels (every ``__pycache__`` of the package: numba caches
-beside each source file).
+file of the sub-packages that hold kernels (:data:`KERNEL_DIRS`; a test checks that no
+other file compiles anything) and, when the hash differs from the one stored beside the
+cache, removes the package's cached kernels (every ``__pycache__`` of the package: numba
+caches beside each source file). An edit to the ROS layer or the tools keeps the cache.
 """
 from __future__ import annotations
 
@@ -38,10 +39,13 @@ import os
 
 import numba as nb
 
-__all__ = ['kernel', 'invalidate_stale_cache', 'PACKAGE_DIR']
+__all__ = ['kernel', 'invalidate_stale_cache', 'PACKAGE_DIR', 'KERNEL_DIRS']
 
 #: the package's top directory (cosserat_ros/)
 PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+#: the sub-packages whose files hold (or are inlined into) compiled kernels
+KERNEL_DIRS = ('core', 'fast')
 
 #: fast-math flags of the kernels: fused multiply-add only
 STRICT = frozenset({'contract'})
@@ -57,10 +61,10 @@ def kernel(**options):
 
 
 def kernel_sources(package_dir: str = PACKAGE_DIR):
-    """Every Python file of the package, relative to it, sorted (the ROS layer and the
-    tools hold no kernels, but hashing them too costs nothing and cannot miss one)."""
+    """Every Python file of :data:`KERNEL_DIRS`, relative to the package, sorted."""
     out = []
-    for root, dirs, files in os.walk(package_dir):
+    for root, dirs, files in (w for d in KERNEL_DIRS
+                              for w in os.walk(os.path.join(package_dir, d))):
         dirs[:] = sorted(d for d in dirs if d != '__pycache__')
         out += [os.path.relpath(os.path.join(root, f), package_dir)
                 for f in files if f.endswith('.py')]
