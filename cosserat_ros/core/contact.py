@@ -64,6 +64,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
+from .surface_query import triangle_barycentric
 
 __all__ = ['SHAPES', 'WIDTH', 'resolve', 'distance', 'rotation_matrix',
            'mesh_distance_field']
@@ -379,60 +380,12 @@ def distances(ob, meta, data, k, pts):
 
 @kernel()
 def _point_triangle(p0, p1, p2, a, b, c):
-    """Distance from point p to triangle (a, b, c) (Ericson, Real-Time Collision
-    Detection, 5.1.5: the closest point by Voronoi regions)."""
-    ab0 = b[0] - a[0]
-    ab1 = b[1] - a[1]
-    ab2 = b[2] - a[2]
-    ac0 = c[0] - a[0]
-    ac1 = c[1] - a[1]
-    ac2 = c[2] - a[2]
-    ap0 = p0 - a[0]
-    ap1 = p1 - a[1]
-    ap2 = p2 - a[2]
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 <= 0.0 and d2 <= 0.0:
-        q0, q1, q2 = a[0], a[1], a[2]
-    else:
-        bp0 = p0 - b[0]
-        bp1 = p1 - b[1]
-        bp2 = p2 - b[2]
-        d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-        d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-        cp0 = p0 - c[0]
-        cp1 = p1 - c[1]
-        cp2 = p2 - c[2]
-        d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-        d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-        vc = d1 * d4 - d3 * d2
-        vb = d5 * d2 - d1 * d6
-        va = d3 * d6 - d5 * d4
-        if d3 >= 0.0 and d4 <= d3:
-            q0, q1, q2 = b[0], b[1], b[2]
-        elif d6 >= 0.0 and d5 <= d6:
-            q0, q1, q2 = c[0], c[1], c[2]
-        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            t = d1 / (d1 - d3)
-            q0, q1, q2 = a[0] + t * ab0, a[1] + t * ab1, a[2] + t * ab2
-        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-            t = d2 / (d2 - d6)
-            q0, q1, q2 = a[0] + t * ac0, a[1] + t * ac1, a[2] + t * ac2
-        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-            q0 = b[0] + t * (c[0] - b[0])
-            q1 = b[1] + t * (c[1] - b[1])
-            q2 = b[2] + t * (c[2] - b[2])
-        else:
-            den = 1.0 / (va + vb + vc)
-            v = vb * den
-            w = vc * den
-            q0 = a[0] + ab0 * v + ac0 * w
-            q1 = a[1] + ab1 * v + ac1 * w
-            q2 = a[2] + ab2 * v + ac2 * w
-    e0 = p0 - q0
-    e1 = p1 - q1
-    e2 = p2 - q2
+    """Distance from point p to triangle (a, b, c) (the closest point of
+    :func:`.surface_query.triangle_barycentric`)."""
+    u, v, w = triangle_barycentric(p0, p1, p2, a, b, c)
+    e0 = p0 - (u * a[0] + v * b[0] + w * c[0])
+    e1 = p1 - (u * a[1] + v * b[1] + w * c[1])
+    e2 = p2 - (u * a[2] + v * b[2] + w * c[2])
     return math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
 
 
