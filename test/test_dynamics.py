@@ -431,3 +431,26 @@ def test_pins_forces_and_state_api():
         warnings.simplefilter('error')
         sim.material = Material(zeta=30.0, xi=1e-4, density=0.3)
     assert sim.material.zeta == 30.0
+
+
+@pytest.mark.parametrize('pattern', ['regular', 'irregular'])
+def test_critical_dt_of_another_material_updates_the_first_estimate(pattern):
+    # a run-time material change (the node's parameter path) must not run a new 60-step
+    # estimate: scaled stiffness or density is exact, any other change a short Lanczos
+    # run from the first estimate's Ritz vector; both agree with a new simulator's full
+    # estimate, never above it by more than the estimates' own scatter (two Lanczos runs
+    # from different start vectors: ~1e-8; above by more would accept a less safe dt)
+    mesh = grid_mesh(24, 24, pattern=pattern, seed=3)
+    base = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)
+    sim = ClothSimulator(mesh, base, check_dt=False)
+    sim.critical_dt()
+    for mat in (Material(zeta=100.0, xi=4e-5, phi=2e-6, density=0.2, damping=0.1),
+                Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.5, damping=2.0),
+                Material(zeta=80.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1),
+                Material(zeta=50.0, xi=1e-3, phi=1e-5, density=0.3, damping=0.1),
+                Material(zeta=937.5, xi=1e-3 / 6, phi=0.0, density=0.2, damping=0.1)):
+        full = ClothSimulator(mesh, mat, check_dt=False).critical_dt()
+        fast = sim.critical_dt(mat)
+        assert 0.99 * full <= fast <= full * (1 + 1e-6), (mat, fast / full)
+        sim.material = mat                   # the node applies it: the same value, cached
+        assert sim.critical_dt() == fast

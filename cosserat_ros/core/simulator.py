@@ -39,7 +39,7 @@ from .model import Model
 from .handles import HandleSet
 from .obstacles import ObstacleSet
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
-from .solvers.stability import critical_dt as _critical_dt, max_eigenvalue as _max_eigenvalue
+from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
 from .state import Control, State
 from .terms import covariant
 from .terms.jet import model_scratch
@@ -119,6 +119,9 @@ class ClothSimulator:
         self._time = 0.0
         self._steps = 0
         self._critical_dt: Optional[float] = None
+        # omega_max^2 of the first full estimate: (material, omega^2, Ritz vector)
+        self._omega2_base = None
+        self._omega2_known: Dict[tuple, float] = {}
         self.material = material
         self._dt = self._check_positive(dt, 'dt')
         if check_dt:
@@ -540,33 +543,68 @@ class ClothSimulator:
 
     # ------------------------------------------------------------------ stability
     def critical_dt(self, material: Optional[Material] = None) -> float:
-        """Largest stable time step [s] for this mesh and material (cached), or for another
-        ``material`` on the same mesh (no new simulator: the same model and solver with
-        that material's coefficients): 0.8 of the damped symplectic Euler limit for the
-        highest frequency of the system linearised at rest (:mod:`.solvers.stability`)."""
+        """Largest stable time step [s] for this mesh and material, or for another
+        ``material`` on the same mesh: 0.8 of the damped symplectic Euler limit for the
+        highest frequency of the system linearised at rest (:mod:`.solvers.stability`).
+
+        The first call runs the full estimate (60 Lanczos iterations); later materials
+        update it (:meth:`_material_omega2`), so that a run-time material change costs
+        milliseconds, not a new estimate."""
         if material is not None and material != self._material:
             if not isinstance(material, Material):
                 raise ValueError(f'material must be a Material, got {type(material).__name__}')
-            coeff = self.model.coefficients(material)
-            return _critical_dt(self._omega2(coeff, self.mesh.vertices), material.density,
+            return _critical_dt(self._material_omega2(material), material.density,
                                 material.damping)
         if self._critical_dt is None:
-            self._critical_dt = _critical_dt(self.max_eigenvalue(), self._material.density,
-                                             self._material.damping)
+            self._critical_dt = _critical_dt(self._material_omega2(self._material),
+                                             self._material.density, self._material.damping)
         return self._critical_dt
+
+    #: Lanczos iterations of an update from the first estimate's Ritz vector
+    UPDATE_ITERATIONS = 12
+
+    def _material_omega2(self, material: Material) -> float:
+        """omega_max^2 at rest for ``material``. The internal force is linear in the
+        stiffness coefficients (zeta, xi, phi) and the mass in the density, so for
+        coefficients c = s c0 and density mu, omega^2 = s (mu0 / mu) omega0^2 exactly
+        (damping does not enter). Any other change runs :data:`UPDATE_ITERATIONS` Lanczos
+        iterations from the first estimate's top Ritz vector (an upper estimate still:
+        Ritz value plus residual). Results are kept per material."""
+        stiff = np.array([material.zeta, material.xi, material.phi])
+        key = (*stiff.tolist(), material.density)
+        if key in self._omega2_known:
+            return self._omega2_known[key]
+        coeff = self.model.coefficients(material)
+        if self._omega2_base is None:
+            w2, vec = self._omega2(coeff, self.mesh.vertices)
+            self._omega2_base = (material, w2, vec)
+        else:
+            m0, w0, vec0 = self._omega2_base
+            stiff0 = np.array([m0.zeta, m0.xi, m0.phi])
+            k = int(np.argmax(np.abs(stiff0)))
+            scale = stiff[k] / stiff0[k] if stiff0[k] else 0.0
+            if scale > 0 and np.allclose(stiff, scale * stiff0, rtol=1e-12, atol=0.0):
+                w2 = w0 * scale * m0.density / material.density
+            else:
+                w2, _ = self._omega2(coeff, self.mesh.vertices, self.UPDATE_ITERATIONS,
+                                     start=vec0)
+        if len(self._omega2_known) > 64:
+            self._omega2_known.clear()
+        self._omega2_known[key] = w2
+        return w2
 
     def max_eigenvalue(self, iterations: int = 60, seed: int = 0,
                        at: Optional[np.ndarray] = None) -> float:
         """omega_max^2 [1/s^2] of the free system linearised at rest, or at positions
         ``at`` (Lanczos, an upper estimate: largest Ritz value plus its residual)."""
         X = self.mesh.vertices if at is None else np.asarray(at, dtype=np.float64)
-        return self._omega2(self.coefficients, X, iterations, seed)
+        return self._omega2(self.coefficients, X, iterations, seed)[0]
 
-    def _omega2(self, coeff, X, iterations: int = 60, seed: int = 0) -> float:
+    def _omega2(self, coeff, X, iterations: int = 60, seed: int = 0, start=None):
         def force(x, out):
             self.solver.internal_forces(np.ascontiguousarray(x), coeff, out)
-        return _max_eigenvalue(force, coeff.mass, X, self.mesh.mean_edge_length, iterations,
-                               seed)
+        return _max_eigenpair(force, coeff.mass, X, self.mesh.mean_edge_length, iterations,
+                              seed, start)
 
     # ------------------------------------------------------------------ helpers
     @staticmethod

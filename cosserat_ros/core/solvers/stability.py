@@ -18,7 +18,7 @@ import numpy as np
 
 from ..constants import CRITICAL_DT_SAFETY
 
-__all__ = ['stability_limit', 'max_eigenvalue', 'critical_dt']
+__all__ = ['stability_limit', 'max_eigenvalue', 'max_eigenpair', 'critical_dt']
 
 
 def stability_limit(omega_max: float, gamma_max: float) -> float:
@@ -37,6 +37,15 @@ def max_eigenvalue(force: Callable[[np.ndarray, np.ndarray], None], mass: np.nda
     Lanczos with full re-orthogonalisation, an upper estimate (largest Ritz value plus its
     residual). ``force(x, out)`` writes the internal force at x into out (n,3); ``h`` is
     the length scale of the finite-difference probe (the mean edge length)."""
+    return max_eigenpair(force, mass, at, h, iterations, seed)[0]
+
+
+def max_eigenpair(force: Callable[[np.ndarray, np.ndarray], None], mass: np.ndarray,
+                  at: np.ndarray, h: float, iterations: int = 60, seed: int = 0,
+                  start: np.ndarray = None):
+    """:func:`max_eigenvalue` and its Ritz vector (3n,), starting from ``start`` (e.g. the
+    vector of an earlier estimate for a nearby operator: a few iterations then suffice,
+    and the residual term keeps the estimate an upper one) or from a random vector."""
     n3 = 3 * len(mass)
     minv_sqrt = np.repeat(1.0 / np.sqrt(mass), 3)
     f_p = np.empty_like(at)
@@ -54,7 +63,7 @@ def max_eigenvalue(force: Callable[[np.ndarray, np.ndarray], None], mass: np.nda
     Q = np.zeros((k + 1, n3))
     alpha = np.zeros(k)
     beta = np.zeros(k)
-    q = rng.standard_normal(n3)
+    q = rng.standard_normal(n3) if start is None else np.asarray(start, dtype=np.float64)
     Q[0] = q / np.linalg.norm(q)
     for j in range(k):
         w = op(Q[j])
@@ -68,7 +77,7 @@ def max_eigenvalue(force: Callable[[np.ndarray, np.ndarray], None], mass: np.nda
         Q[j + 1] = w / beta[j]
     T = np.diag(alpha[:k]) + np.diag(beta[:k - 1], 1) + np.diag(beta[:k - 1], -1)
     theta, s = np.linalg.eigh(T)
-    return float(theta[-1] + abs(beta[k - 1] * s[-1, -1]))
+    return float(theta[-1] + abs(beta[k - 1] * s[-1, -1])), Q[:k].T @ s[:, -1]
 
 
 def critical_dt(omega2_max: float, density: float, damping: float) -> float:
