@@ -26,9 +26,9 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'cloth_node = cosserat_ros.ros.node:main',
-            'record = cosserat_ros.tools.record:main',
-            'render = cosserat_ros.tools.render:main',
+            'cloth_node = cosserat_ros.entry:cloth_node',
+            'record = cosserat_ros.entry:record',
+            'render = cosserat_ros.entry:render',
         ],
     },
 )

@@ -11,9 +11,10 @@ Sub-packages (reading order for a newcomer in ``README.md``, *Layout*):
 * ``tools``: ``record``, ``render``, ``make bench`` and ``make validate``.
 
 ``cosserat_ros.mesh`` and ``cosserat_ros.simulator`` are the documented entry points of the
-library; they re-export the core.
+library; they re-export the core. Importing the package imports nothing else, so that the
+executables' entry points (:mod:`.entry`) can catch a Ctrl-C that lands while numba and
+rclpy load; every module that compiles kernels imports ``core/compiled.py`` first, which
+drops stale kernel caches.
 """
-
-from .core import compiled as _compiled  # noqa: F401  (drops stale kernel caches first)
 
 __version__ = '0.1.0'

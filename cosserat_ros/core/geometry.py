@@ -54,6 +54,7 @@ import warnings
 import numba as nb
 import numpy as np
 
+from . import compiled  # noqa: F401  (drops stale kernel caches before these load)
 from .constants import JET_MAX_RINGS, JET_RCOND_MIN, JET_TEMPLATE_TOL
 from .mesh import ClothMesh, csr_from_pairs, k_ring
 
