@@ -19,6 +19,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
+from cosserat_ros.ros import node as node_module
 from cosserat_ros.ros import pacing
 from cosserat_ros.ros.node import ClothNode, ConfigError, percentile, pin_set
 
@@ -206,7 +207,8 @@ def test_divergence_pauses_reports_and_reset_recovers(h):
     assert h.node.paused
     h.meshes.clear()
     h.energies.clear()
-    h.spin(0.3)
+    # paused by the divergence, the node publishes its (restored) state once a second
+    h.spin(node_module.PAUSED_PUBLISH_PERIOD + 0.3)
     assert h.energies and h.energies[-1].status[0].level == DiagnosticStatus.ERROR
     for m in h.meshes:
         assert np.all(np.isfinite([[p.x, p.y, p.z] for p in m.markers[0].points]))
@@ -260,6 +262,10 @@ def test_pause_service(h):
       'obstacles.a.file': '/nonexistent.stl'}, 'obstacle a: mesh file'),
     ({'obstacles.names': ['a', 'a']}, 'duplicates'),
     ({'contact.thickness': 0.0}, 'contact.thickness'),
+    ({'dt': 1e-9}, 'below'),                              # sim time would stand still
+    ({'materal.zeta': 50.0, 'dtt': 1e-4}, 'unknown parameters dtt, materal.zeta'),
+    ({'handles.names': ['left'], 'handles.right.radius': 0.1}, 'handles.right.radius'),
+    ({'pinned.indices': [10_000]}, 'pinned.indices'),
 ])
 def test_bad_startup_parameters_are_refused(params, match):
     ctx = Context()
@@ -628,3 +634,66 @@ def test_handles_grasp_move_report_and_release_through_ros():
         assert h.node.diverged is None and np.all(np.isfinite(h.node.sim.positions))
     finally:
         h.close()
+
+
+def test_summed_rows_cannot_exceed_max_force(h):
+    # 1,000 rows of 10 N on one vertex (each within max_force = 10 N) and point forces that
+    # land on a vertex already loaded by ~/vertex_forces are refused; the cloth runs on
+    centre = (N // 2) * (N + 1) + N // 2
+    h.send('vertex', rows(np.tile([centre, 0.0, 0.0, 10.0], (1000, 1))))
+    assert h.node.rejected['vertex_forces'] == 1 and not h.node.sim.vertex_forces.any()
+    h.send('vertex', rows([centre, 0.0, 0.0, 8.0]))
+    assert h.node.sim.vertex_forces[centre, 2] == 8.0
+    x = h.node.sim.positions[centre]
+    h.send('point', rows([x[0], x[1], x[2], 0.0, 0.0, 9.0]))     # all of it on the centre
+    assert h.node.rejected['point_forces'] == 1
+    assert h.node.sim.vertex_forces.sum(axis=0)[2] == pytest.approx(8.0)
+    h.spin(0.3)
+    assert h.node.diverged is None
+
+
+def test_observe_only_node_takes_no_commands():
+    harness = Harness(**{'observe_only': True, 'handles.names': ['left']})
+    try:
+        assert harness.spin_until(lambda: len(harness.meshes) > 0, 30)
+        names = dict(harness.peer.get_topic_names_and_types())
+        subs = {t for t in names
+                if harness.peer.get_subscriptions_info_by_topic(t)
+                and any(i.node_name == 'cloth_node'
+                        for i in harness.peer.get_subscriptions_info_by_topic(t))}
+        assert not subs, subs                  # no command topic at all
+        services = {n for n, _ in harness.node.get_service_names_and_types_by_node(
+            'cloth_node', '/')}
+        for srv in ('/cloth_node/reset', '/cloth_node/pause', '/cloth_node/handles/left/grasp'):
+            assert srv not in services
+        assert '/cloth_node/set_parameters' in services           # to be refused
+        for name, value in (('material.zeta', 80.0), ('max_force', 1e6), ('dt', 1e-4),
+                            ('gravity', [0.0, 0.0, 0.0])):
+            res = harness.node.set_parameters([Parameter(name, value=value)])[0]
+            assert not res.successful and 'observe_only' in res.reason, name
+        assert harness.node.sim.material.zeta == 50.0
+        assert harness.node.set_parameters([Parameter('coloring', value='speed')])[0]\
+            .successful
+        assert harness.node.set_parameters([Parameter('observe_only', value=False)])[0]\
+            .successful is False
+    finally:
+        harness.close()
+
+
+def test_a_paused_node_publishes_on_change_and_once_a_second(h):
+    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
+    fut = cli.call_async(SetBool.Request(data=True))
+    h.spin_until(fut.done)
+    h.spin(0.3)
+    h.meshes.clear()
+    h.spin(2.1)
+    assert 1 <= len(h.meshes) <= 4, len(h.meshes)            # not 50 Hz
+    assert h.node.timer.timer_period_ns == int(node_module.PAUSED_TICK * 1e9)
+    h.meshes.clear()
+    h.node.set_parameters([Parameter('coloring', value='speed')])
+    assert h.spin_until(lambda: h.meshes, node_module.PAUSED_TICK + 0.3)
+    fut = cli.call_async(SetBool.Request(data=False))
+    h.spin_until(fut.done)
+    h.meshes.clear()
+    h.spin(0.5)
+    assert len(h.meshes) >= 10                                # running: every tick again

@@ -190,6 +190,9 @@ def test_signals_stop_a_busy_node_cleanly(tmp_path, client, sig):
     (PARAMS.replace('dt: 2.0e-4', 'dt: 1.0e-2'), 'critical step'),
     (PARAMS.replace('zeta: 50.0', 'zeta: -50.0'), 'material.zeta'),
     ('cloth_node:\n  ros__parameters:\n    mesh: {nx: [\n', ''),          # broken YAML
+    (PARAMS + '    dtt: 1.0e-4\n    materal: {zeta: 3.0}\n', 'dtt, materal.zeta'),  # typos
+    (PARAMS.replace('cloth_node:', 'clothnode:'), 'no section for node /cloth_node'),
+    (PARAMS.replace('dt: 2.0e-4', 'dt: 1.0e-9'), 'below'),
 ])
 def test_bad_params_file_fails_with_one_line(tmp_path, text, match):
     params = tmp_path / 'bad.yaml'
@@ -266,3 +269,111 @@ def test_a_hostile_peer_cannot_stall_the_node_through_obstacles_and_handles(tmp_
         out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert 'Traceback' not in err + out
+
+
+def _mesh_gaps(stamps):
+    return np.diff(stamps).max() if len(stamps) > 1 else float('inf')
+
+
+def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_path,
+                                                                           client):
+    """Another process floods ~/point_forces with 10,000-row messages (refused by their
+    size, unread) and with the largest accepted ones (4,096 rows near the cloth, each
+    bounded work: a grid closest-point query), ~/vertex_forces with 1,000 rows of 10 N on
+    one vertex (each row within max_force, their sum not), and calls set_parameters with
+    a new material each time. The mesh keeps coming with no gap over 0.5 s, the cloth
+    does not diverge, and SIGINT in the middle of it ends the node within 1 s."""
+    from rcl_interfaces.srv import SetParameters
+    node, ex = client
+    params = tmp_path / 'flood.yaml'
+    params.write_text(PARAMS.replace('nx: 12, ny: 12', 'nx: 40, ny: 40'))
+    meshes, diags = [], []
+    node.create_subscription(MarkerArray, '/cloth_node/mesh',
+                             lambda m: meshes.append(time.monotonic()), 200, raw=True)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    points = node.create_publisher(Float64MultiArray, '/cloth_node/point_forces', 10)
+    vertex = node.create_publisher(Float64MultiArray, '/cloth_node/vertex_forces', 10)
+    rng = np.random.default_rng(0)
+    huge = Float64MultiArray()
+    huge.data = rng.uniform(0.0, 1.0, 60_000).tolist()            # 10,000 rows of 6
+    full = np.zeros((4096, 6))
+    full[:, :2] = rng.uniform(0.0, 1.0, (4096, 2))                 # over the cloth
+    full[:, 2] = rng.uniform(-0.8, 0.2, 4096)
+    full[:, 5] = 1e-3                                              # 4 N in all
+    largest = Float64MultiArray()
+    largest.data = full.ravel().tolist()
+    summed = Float64MultiArray()
+    summed.data = np.tile([20.0 * 41 + 20.0, 0.0, 0.0, 10.0], 1000).tolist()
+    setp = node.create_client(SetParameters, '/cloth_node/set_parameters')
+    proc = start(params)
+    try:
+        assert spin_until(ex, lambda: len(meshes) >= 3, 90.0), 'no mesh from cloth_node'
+        assert setp.wait_for_service(timeout_sec=10.0)
+        meshes.clear()
+        pending, k = [], 0
+        end = time.monotonic() + 4.0
+        while time.monotonic() < end:
+            points.publish(huge)
+            points.publish(largest)
+            vertex.publish(summed)
+            pending = [f for f in pending if not f.done()]
+            while len(pending) < 4:                    # a new material every call
+                k += 1
+                req = SetParameters.Request()
+                req.parameters = [Parameter('material.zeta',
+                                            value=50.0 + 0.01 * k).to_parameter_msg()]
+                pending.append(setp.call_async(req))
+            spin_until(ex, lambda: False, 0.01)
+        gap = _mesh_gaps(meshes)
+        assert gap < 0.5, (gap, len(meshes))
+        assert k > 20, k                              # the calls were answered meanwhile
+        diags.clear()
+        assert spin_until(ex, lambda: len(diags) > 0, 5.0)
+        vals = {kv.key: kv.value for kv in diags[-1].status[0].values}
+        assert int(vals['rejected_point_forces']) > 0
+        assert int(vals['rejected_vertex_forces']) > 0
+        assert diags[-1].status[0].level != 2, vals          # not diverged (ERROR)
+        # SIGINT while the flood goes on: the node is gone within a second
+        for _ in range(5):
+            points.publish(largest)
+        proc.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        while proc.poll() is None and time.monotonic() - t0 < 5.0:
+            points.publish(largest)
+            time.sleep(0.01)
+        assert proc.poll() is not None and time.monotonic() - t0 < 1.0, \
+            time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out
+
+
+def test_security_that_cannot_be_provided_is_a_one_line_error(tmp_path):
+    params = tmp_path / 'p.yaml'
+    params.write_text(PARAMS)
+    (tmp_path / 'keystore' / 'enclaves').mkdir(parents=True)
+    for keystore in (None, tmp_path / 'keystore'):
+        env = dict(os.environ, ROS_SECURITY_ENABLE='true', ROS_SECURITY_STRATEGY='Enforce')
+        if keystore:
+            env['ROS_SECURITY_KEYSTORE'] = str(keystore)
+        proc = start(params, env=env)
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 2, err
+        assert 'Traceback' not in err + out
+        errors = [ln for ln in err.splitlines() if 'error' in ln.lower()]
+        assert len(errors) == 1 and 'ROS security requested' in errors[0], err
+
+
+def test_ctrl_c_while_starting_ends_without_a_traceback(tmp_path):
+    # half a second in, the executable is still importing numpy, numba and rclpy
+    params = tmp_path / 'p.yaml'
+    params.write_text(PARAMS)
+    proc = start(params)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert 'Traceback' not in err + out, err
+    assert proc.returncode in (0, 130), err

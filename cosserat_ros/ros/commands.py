@@ -13,8 +13,14 @@ import numpy as np
 from ..core.surface_query import closest_points
 
 __all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field',
-           'obstacle_markers', 'obstacle_name', 'MAX_MARKERS', 'MAX_MESH_POINTS',
-           'handle_target']
+           'check_totals', 'obstacle_markers', 'obstacle_name', 'MAX_MARKERS',
+           'MAX_MESH_POINTS', 'MAX_ROWS', 'MAX_FORCE_BYTES', 'handle_target']
+
+#: rows per ``~/vertex_forces`` or ``~/point_forces`` message
+MAX_ROWS = 4096
+#: the largest serialised force message [bytes]: MAX_ROWS rows of 6 doubles and a layout
+#: (a larger one is refused unread)
+MAX_FORCE_BYTES = 8 * 6 * MAX_ROWS + 2048
 
 
 class CommandError(ValueError):
@@ -23,19 +29,33 @@ class CommandError(ValueError):
 
 def force_rows(msg, width: int, max_force: float) -> np.ndarray:
     """The rows (k, width) of a ``std_msgs/Float64MultiArray`` whose last three columns
-    are a force [N]: ``layout.data_offset`` honoured, a 2-D layout must describe the data
-    in rows of ``width``, every value finite, every force at most ``max_force``."""
+    are a force [N]: ``layout.data_offset`` honoured; a layout, if given, describes the
+    data exactly (one dimension: ``size`` = the number of values; two: ``size`` rows of
+    ``width``; strides 0, i.e. unset, or those of packed rows); at most :data:`MAX_ROWS`
+    rows, every value finite, every row's force at most ``max_force`` (their totals per
+    vertex: :func:`check_totals`)."""
     data = np.asarray(msg.data, dtype=np.float64)
     off = msg.layout.data_offset
     if off > len(data):
         raise CommandError(f'layout.data_offset {off} beyond {len(data)} values')
     data = data[off:]
-    dims = msg.layout.dim
-    if len(dims) >= 2 and (dims[1].size != width or dims[0].size * width != len(data)):
-        raise CommandError(f'layout {dims[0].size}x{dims[1].size} does not describe '
-                           f'{len(data)} values in rows of {width}')
-    if len(data) % width:
-        raise CommandError(f'{len(data)} values are not rows of {width}')
+    n = len(data)
+    dims = list(msg.layout.dim)
+    if len(dims) > 2:
+        raise CommandError(f'a layout of {len(dims)} dimensions (rows of {width}: 1 or 2)')
+    if len(dims) == 1 and (dims[0].size != n or dims[0].stride not in (0, n)):
+        raise CommandError(f'layout size {dims[0].size} stride {dims[0].stride} does not '
+                           f'describe {n} values')
+    if len(dims) == 2 and (dims[1].size != width or dims[0].size * width != n
+                           or dims[0].stride not in (0, n)
+                           or dims[1].stride not in (0, width)):
+        raise CommandError(f'layout {dims[0].size}x{dims[1].size} (strides {dims[0].stride}, '
+                           f'{dims[1].stride}) does not describe {n} values in packed rows '
+                           f'of {width}')
+    if n % width:
+        raise CommandError(f'{n} values are not rows of {width}')
+    if n // width > MAX_ROWS:
+        raise CommandError(f'{n // width} rows, at most {MAX_ROWS} per message')
     if not np.all(np.isfinite(data)):
         raise CommandError('non-finite value')
     rows = data.reshape(-1, width)
@@ -58,13 +78,37 @@ def point_forces(rows: np.ndarray, x: np.ndarray,
                  faces: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Rows ``[px, py, pz, fx, fy, fz]`` -> the force of each row shared by the vertices of
     the cloth's closest triangle to its point, barycentrically: (indices (3k,), forces
-    (3k,3))."""
+    (3k,3)). A point further from the cloth's bounding box than the box's diagonal (at
+    least 1 m) is refused: it names no place on the cloth."""
     if not len(rows):
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    reach = max(float(np.linalg.norm(hi - lo)), 1.0)
+    # the gap along the worst axis (no square to overflow for a point 1e200 m away)
+    away = np.maximum(np.maximum(lo - rows[:, :3], rows[:, :3] - hi), 0.0).max(axis=1)
+    if away.max() > reach:
+        k = int(np.argmax(away))
+        raise CommandError(f'row {k}: point {away[k]:.3g} m from the cloth\'s bounding box, '
+                           f'more than {reach:.3g} m')
     tri, bary = closest_points(x, faces, rows[:, :3])
     idx = faces[tri].reshape(-1)
     f = (bary[:, :, None] * rows[:, None, 3:]).reshape(-1, 3)
     return idx.astype(np.int64), f
+
+
+def check_totals(indices: np.ndarray, forces: np.ndarray, n_vertices: int,
+                 max_force: float) -> None:
+    """CommandError unless the force summed on each vertex (rows repeating a vertex, point
+    forces sharing it, both topics together) is at most ``max_force`` [N]."""
+    if not len(indices):
+        return
+    total = np.zeros((n_vertices, 3))
+    np.add.at(total, indices, forces)
+    mag = np.linalg.norm(total, axis=1)
+    v = int(np.argmax(mag))
+    if mag[v] > max_force * (1.0 + 1e-12):
+        raise CommandError(f'the forces on vertex {v} add up to {mag[v]:.4g} N, above '
+                           f'max_force {max_force:.4g} N')
 
 
 def force_field(msg, frame_id: str, max_acceleration: float) -> np.ndarray:

@@ -41,6 +41,7 @@ import sys
 import time
 from typing import Dict, List, Optional, Tuple
 
+import numba
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -62,10 +63,11 @@ from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, Simu
                               steps_tiled)
 from . import commands
 from .conversions import colormap, mesh_marker_array, percentile
-from .pacing import Pacer
+from .pacing import Pacer, ThreadTuner
 from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
-                     MATERIAL_KEYS, OBSTACLE_KEYS, obstacle_geometry, PARAMETERS, pin_set, pinned_indices,
-                     RUNTIME_FLOATS, vec3)
+                     MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
+                     obstacle_geometry, PARAMETERS, params_files, pin_set, pinned_indices,
+                     RUNTIME_FLOATS, unknown_parameters, vec3)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 
@@ -73,6 +75,11 @@ __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 #: the largest serialised ~/obstacles message [bytes]: commands.MAX_MESH_POINTS points
 #: (24 bytes each) and commands.MAX_MARKERS markers' headers, with room to spare
 MAX_OBSTACLE_BYTES = 24 * 30_000 + 64 * 512
+
+#: [s] while paused (or diverged) the state is published when it changes and at least
+#: this often, not every tick, and the timer ticks every PAUSED_TICK: a paused node idles
+PAUSED_PUBLISH_PERIOD = 1.0
+PAUSED_TICK = 0.2
 
 #: [s] wall time between two distance-field builds for mesh markers on ~/obstacles (each
 #: costs up to ~1 s of the callback thread: commands.MAX_MESH_POINTS, obstacles.py)
@@ -111,16 +118,22 @@ class _Force:
 class ClothNode(Node):
     """Owns the simulator; steps it in real time on a timer and publishes it."""
 
-    def __init__(self, name: str = 'cloth_node', **kwargs):
+    def __init__(self, name: str = 'cloth_node', argv=None, **kwargs):
         super().__init__(name, **kwargs)
         self._declare()
         p = self._values()
+        # everything that needs no compiled kernel is checked first: a bad file fails fast
+        self._check_parameter_names(p, sys.argv if argv is None else argv)
+        self.observe_only = bool(p['observe_only'])
         self.mesh = self._build_mesh(p)
         try:
             material = Material(**{k: p['material.' + k] for k in MATERIAL_KEYS})
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
+        gravity = vec3(p['gravity'], 'gravity')
+        pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
+        check_dt(p['dt'])
         t0 = time.perf_counter()
         # with a cold compile cache, a second process compiles on the other core what the
         # start-up below needs after its step (cosserat_ros.core.warmup)
@@ -138,8 +151,9 @@ class ClothNode(Node):
         self.get_logger().info(
             f'{self.mesh}: kernels ready and critical dt {self.sim.critical_dt():.3g} s '
             f'found in {time.perf_counter() - t0:.2f} s')
-        self.sim.gravity = vec3(p['gravity'], 'gravity')
-        pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
+        # the closest-point query of ~/point_forces, compiled (or loaded) before any topic
+        commands.point_forces(np.zeros((1, 6)), self.sim.positions, self.mesh.faces)
+        self.sim.gravity = gravity
         if len(pins):
             self.sim.pin(pins)
         self.frame_id = p['frame_id']
@@ -161,6 +175,9 @@ class ClothNode(Node):
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
         self.pacer = Pacer(self.period)
+        self.threads = ThreadTuner(numba.get_num_threads())
+        self._dirty = True                 # something to publish while paused
+        self._last_publish = -math.inf
         self._rtf = 1.0
         self._window = [time.monotonic(), 0.0]   # wall start, sim advanced since
         self._last_status = time.monotonic()
@@ -176,13 +193,21 @@ class ClothNode(Node):
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.clock_pub = self.create_publisher(Clock, '/clock', latched)
-        self.create_subscription(Float64MultiArray, '~/vertex_forces', self.on_vertex_forces,
-                                 10)
-        self.create_subscription(Float64MultiArray, '~/point_forces', self.on_point_forces, 10)
-        self.create_subscription(Vector3Stamped, '~/force_field', self.on_force_field, 10)
-        # raw: a message's size is checked before rclpy builds a Python object per point
-        self.create_subscription(MarkerArray, '~/obstacles', self.on_obstacles_raw, 10,
-                                 raw=True)
+        if not self.observe_only:
+            # raw: a message's size is checked before rclpy builds its Python object
+            self.create_subscription(
+                Float64MultiArray, '~/vertex_forces',
+                self._sized('vertex_forces', Float64MultiArray, commands.MAX_FORCE_BYTES,
+                            self.on_vertex_forces), 10, raw=True)
+            self.create_subscription(
+                Float64MultiArray, '~/point_forces',
+                self._sized('point_forces', Float64MultiArray, commands.MAX_FORCE_BYTES,
+                            self.on_point_forces), 10, raw=True)
+            self.create_subscription(Vector3Stamped, '~/force_field', self.on_force_field, 10)
+            self.create_subscription(
+                MarkerArray, '~/obstacles',
+                self._sized('obstacles', MarkerArray, MAX_OBSTACLE_BYTES, self.on_obstacles),
+                10, raw=True)
         self.obstacle_pub = self.create_publisher(MarkerArray, '~/obstacle_markers',
                                                   reliable)
         self._last_obstacle_pub = -1.0
@@ -191,8 +216,9 @@ class ClothNode(Node):
             self._add_wrench_pub(oid)
         self._max_handle_speed = p['handles.max_speed']
         self._handles = self._declared_handles(p['handles.names'], reliable)
-        self.create_service(Trigger, '~/reset', self.on_reset)
-        self.create_service(SetBool, '~/pause', self.on_pause)
+        if not self.observe_only:
+            self.create_service(Trigger, '~/reset', self.on_reset)
+            self.create_service(SetBool, '~/pause', self.on_pause)
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
         self.timer = self.create_timer(self.period, self.tick)
@@ -207,6 +233,44 @@ class ClothNode(Node):
 
     def _values(self) -> dict:
         return {name: self.get_parameter(name).value for name in PARAMETERS}
+
+    def _check_parameter_names(self, p: dict, argv):
+        """Refuse names the node does not know (a typo would otherwise start a default
+        cloth) and a params file that has no section for this node."""
+        known = set(PARAMETERS) | set(self._parameters)        # rclpy's own: use_sim_time
+        for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS)):
+            known |= {f'{group}.{n}.{k}' for n in p[f'{group}.names'] if n for k in keys}
+        bad = unknown_parameters(self._parameter_overrides, known)
+        if bad:
+            raise ConfigError(f'unknown parameter{"s" if len(bad) > 1 else ""} '
+                              f'{", ".join(bad)} for {self.get_fully_qualified_name()} '
+                              '(README lists them all)')
+        files = params_files(argv)
+        found = []
+        for path in files:
+            mine, every = node_sections(path, self.get_fully_qualified_name())
+            found += mine
+        if files and not found:
+            raise ConfigError(f'{", ".join(files)}: no section for node '
+                              f'{self.get_fully_qualified_name()} (a file for this node '
+                              f'starts with "{self.get_name()}:" or "/**:", then '
+                              '"ros__parameters:")')
+
+    def _sized(self, topic: str, msg_type, limit: int, handler):
+        """A raw-subscription callback: a serialised message above ``limit`` bytes is
+        refused unread (bounded work per message: rclpy would otherwise build its Python
+        object first), else it is deserialised and handed to ``handler``."""
+        def callback(data: bytes):
+            if len(data) > limit:
+                self._reject(topic, f'message of {len(data)} bytes, at most {limit}')
+                return
+            try:
+                msg = deserialize_message(data, msg_type)
+            except Exception as exc:                  # a malformed serialisation
+                self._reject(topic, f'undecodable message: {exc}')
+                return
+            handler(msg)
+        return callback
 
     @staticmethod
     def _mesh_path(path: str) -> str:
@@ -283,10 +347,12 @@ class ClothNode(Node):
                  'id': None, 'target': None, 'received': None,
                  'wrench': self.create_publisher(WrenchStamped, f'~/handles/{name}/wrench',
                                                  qos)}
-            self.create_subscription(PoseStamped, f'~/handles/{name}/target',
-                                     lambda msg, n=name: self.on_handle_target(n, msg), 10)
-            self.create_service(SetBool, f'~/handles/{name}/grasp',
-                                lambda req, res, n=name: self.on_grasp(n, req, res))
+            if not self.observe_only:
+                self.create_subscription(PoseStamped, f'~/handles/{name}/target',
+                                         lambda msg, n=name: self.on_handle_target(n, msg),
+                                         10)
+                self.create_service(SetBool, f'~/handles/{name}/grasp',
+                                    lambda req, res, n=name: self.on_grasp(n, req, res))
             out[name] = h
         return out
 
@@ -311,9 +377,11 @@ class ClothNode(Node):
         h['target'], h['received'] = (p, q), now
         if h['id'] is not None:
             self.sim.move_handle(h['id'], p, q, duration=duration)
+        self._dirty = True
 
     def on_grasp(self, name: str, request, response):
         h = self._handles[name]
+        self._dirty = True
         if request.data:
             if h['id'] is not None:
                 response.success, response.message = True, f'{name} holds the cloth already'
@@ -362,21 +430,6 @@ class ClothNode(Node):
         name = self.sim.obstacles[oid]['name']
         self._wrench_pubs[oid] = self.create_publisher(WrenchStamped, f'~/contact/{name}', 5)
 
-    def on_obstacles_raw(self, data: bytes):
-        """The serialised ``~/obstacles`` message: refused unread above
-        :data:`MAX_OBSTACLE_BYTES` (bounded work per message: rclpy would otherwise build
-        a Python object for each of its points first), else :meth:`on_obstacles`."""
-        if len(data) > MAX_OBSTACLE_BYTES:
-            self._reject('obstacles', f'message of {len(data)} bytes, at most '
-                                      f'{MAX_OBSTACLE_BYTES}')
-            return
-        try:
-            msg = deserialize_message(data, MarkerArray)
-        except Exception as exc:                      # a malformed serialisation
-            self._reject('obstacles', f'undecodable message: {exc}')
-            return
-        self.on_obstacles(msg)
-
     def on_obstacles(self, msg: MarkerArray):
         """Markers -> obstacles (:func:`.commands.obstacle_markers`), all or none: ADD
         creates or moves obstacle ``<ns>_<id>`` (its velocity from its last pose), DELETE
@@ -420,6 +473,7 @@ class ClothNode(Node):
             if oid not in self._wrench_pubs:
                 self._add_wrench_pub(oid)
         self._last_obstacle_pub = -1.0               # republish at the next tick
+        self._dirty = True
 
     def _same_marker(self, op) -> bool:
         """An ADD for a marker obstacle that exists with this very shape and geometry (a
@@ -528,11 +582,20 @@ class ClothNode(Node):
         try:
             rows = commands.force_rows(msg, 4, self._max_force)
             idx, f = commands.vertex_forces(rows, self.mesh.n_vertices)
+            self._check_totals('point', idx, f)
         except commands.CommandError as exc:
             self._reject('vertex_forces', str(exc))
             return
         self._forces['vertex'] = _Force(idx, f, time.monotonic())
         self._push_forces()
+
+    def _check_totals(self, other: str, idx: np.ndarray, f: np.ndarray):
+        """``max_force`` bounds the total on each vertex: this message's rows with the
+        standing forces of the ``other`` topic."""
+        o = self._forces[other]
+        if o is not None:
+            idx, f = np.concatenate([idx, o.indices]), np.concatenate([f, o.forces])
+        commands.check_totals(idx, f, self.mesh.n_vertices, self._max_force)
 
     def on_point_forces(self, msg: Float64MultiArray):
         """Rows [px, py, pz, fx, fy, fz] in frame_id: each force goes to the closest point
@@ -541,6 +604,7 @@ class ClothNode(Node):
         try:
             rows = commands.force_rows(msg, 6, self._max_force)
             idx, f = commands.point_forces(rows, self.sim.positions, self.mesh.faces)
+            self._check_totals('vertex', idx, f)
         except commands.CommandError as exc:
             self._reject('point_forces', str(exc))
             return
@@ -595,6 +659,7 @@ class ClothNode(Node):
             h['id'] = None
         self.diverged = None
         self.paused = False
+        self._retime(True)
         self._window = [time.monotonic(), 0.0]
         self.pacer.restart()
         response.success = True
@@ -608,6 +673,8 @@ class ClothNode(Node):
             response.message = f'simulation diverged ({self.diverged}); call ~/reset first'
             return response
         self.paused = bool(request.data)
+        self._dirty = True
+        self._retime(not self.paused)
         self.pacer.restart()
         response.success = True
         response.message = 'paused' if self.paused else 'running'
@@ -620,15 +687,20 @@ class ClothNode(Node):
         dt = self.sim.dt
         for prm in params:
             name, val = prm.name, prm.value
+            if self.observe_only and name not in OBSERVER_RUNTIME:
+                return SetParametersResult(
+                    successful=False, reason=f'observe_only: {name} cannot change (only '
+                                             f'{", ".join(OBSERVER_RUNTIME)} can)')
             if name.startswith('material.'):
                 if not isinstance(val, float) or not math.isfinite(val):
                     return SetParametersResult(successful=False,
                                                reason=f'{name} must be a finite float')
                 mat[name.split('.', 1)[1]] = val
             elif name == 'dt':
-                if not isinstance(val, float) or not (val > 0 and math.isfinite(val)):
+                if not isinstance(val, float) or not (val >= MIN_DT and math.isfinite(val)):
                     return SetParametersResult(successful=False,
-                                               reason='dt must be a positive float')
+                                               reason=f'dt must be a float of at least '
+                                                      f'{MIN_DT:g} s')
                 dt = val
             elif name == 'gravity':
                 try:
@@ -694,6 +766,7 @@ class ClothNode(Node):
                 self._max_handle_speed = val
         if changed_material:
             self.sim.material = Material(**mat)
+        self._dirty = True
 
     # ------------------------------------------------------------------ the loop
     def tick(self):
@@ -704,7 +777,11 @@ class ClothNode(Node):
         if not self.paused and self.diverged is None:
             wanted = self.pacer.wanted(now, self.sim.dt)
             due = self.timer.time_until_next_call()
+            threads = self.threads.threads(now)
+            numba.set_num_threads(threads)
+            t0 = time.perf_counter()
             done = self.pacer.advance(self._step, wanted, None if due is None else due * 1e-9)
+            self.threads.record(threads, done, time.perf_counter() - t0)
             self.pacer.carry(done, wanted, self.sim.dt, now)
             self._window[1] += done * self.sim.dt
         else:
@@ -713,9 +790,14 @@ class ClothNode(Node):
         if wall >= 1.0:
             self._rtf = self._window[1] / wall if not self.paused else 0.0
             self._window = [now, 0.0]
-        t1 = time.perf_counter()
-        self.publish_state()
-        self.pacer.note_publish(time.perf_counter() - t1)
+        running = not self.paused and self.diverged is None
+        # paused, nothing moves: the state goes out when it changes and once a second
+        if running or self._dirty or now - self._last_publish >= PAUSED_PUBLISH_PERIOD:
+            t1 = time.perf_counter()
+            self.publish_state()
+            if running:
+                self.pacer.note_publish(time.perf_counter() - t1)
+        self._retime(running)
         if now - self._last_diag >= 1.0:
             self._last_diag = now
             self.diag_pub.publish(self.diagnostics())
@@ -728,6 +810,15 @@ class ClothNode(Node):
                 f'{self.pacer.step_cost * 1e3:.3f} ms  E_total {e["total"]:.6g} J  '
                 f'(kin {e["kinetic"]:.3g}, elastic {e["elastic"]:.3g})')
 
+    def _retime(self, running: bool):
+        """The timer ticks every period while the cloth runs, every
+        :data:`PAUSED_TICK` s while it is paused or diverged (an idle node)."""
+        ns = int(round((self.period if running else PAUSED_TICK) * 1e9))
+        if self.timer.timer_period_ns != ns:
+            self.timer.timer_period_ns = ns
+            if running:
+                self.timer.reset()
+
     def _step(self, n: int) -> bool:
         """n steps; on a divergence, pause and report, and return False."""
         try:
@@ -735,6 +826,7 @@ class ClothNode(Node):
         except SimulationDiverged as exc:
             self.diverged = str(exc)
             self.paused = True
+            self._dirty = True
             self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
             return False
         return True
@@ -760,6 +852,8 @@ class ClothNode(Node):
 
     def publish_state(self):
         """Publish ~/mesh, ~/energy and /clock for the current state."""
+        self._dirty = False
+        self._last_publish = time.monotonic()
         self._energy, self._densities = self.sim.energy_and_densities()
         x = self.sim.positions
         if not np.all(np.isfinite(x)):       # never publish a NaN (step() restores state)
@@ -839,27 +933,52 @@ class ClothNode(Node):
         return self._status(f'{self.get_name()}: simulation', level, msg, vals)
 
 
+def _security_reason(exc: Exception) -> Optional[str]:
+    """The one-line reason to give when ROS security was requested and rcl failed: the
+    middleware's own first line, what was asked for, and where to look (README)."""
+    if os.environ.get('ROS_SECURITY_ENABLE', '').lower() != 'true':
+        return None
+    text = str(exc).strip().splitlines()
+    first = text[0] if text else type(exc).__name__
+    if 'security libraries' in str(exc):
+        first = 'this middleware (the PyPI Fast DDS) has no security libraries'
+    keystore = os.environ.get('ROS_SECURITY_KEYSTORE', '')
+    return (f'ROS security requested (ROS_SECURITY_ENABLE=true, strategy '
+            f'{os.environ.get("ROS_SECURITY_STRATEGY", "Permissive")}, keystore '
+            f'{keystore or "unset"}) but it cannot be provided: {first}; see README, '
+            '"Security"')
+
+
 def main(args=None) -> int:
     """Entry point of the ``cloth_node`` executable (``ros2 run cosserat_ros cloth_node``)."""
     try:
         rclpy.init(args=args)
     except Exception as exc:       # e.g. an unreadable --params-file
-        print(f'cloth_node: error: {str(exc).strip().splitlines()[0]}', file=sys.stderr)
+        reason = _security_reason(exc) or str(exc).strip().splitlines()[0]
+        print(f'cloth_node: error: {reason}', file=sys.stderr)
         return 2
     node = None
     code = 0
+    if os.environ.get('ROS_SECURITY_ENABLE', '').lower() == 'true':
+        # rclpy's own note while it undoes a node that security kept from starting
+        import warnings
+        warnings.filterwarnings('ignore', message='Failed to fini rosout publisher')
     try:
-        node = ClothNode()
+        node = ClothNode(argv=sys.argv if args is None else args)
         rclpy.spin(node)
     except ConfigError as exc:
         print(f'cloth_node: error: {exc}', file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:
+    except Exception as exc:
+        reason = _security_reason(exc) if node is None else None
+        if reason is not None:                   # the node could not even be created
+            print(f'cloth_node: error: {reason}', file=sys.stderr)
+            code = 2
         # SIGINT/SIGTERM shut the context down while a tick was publishing: the publish
         # fails with an RCLError. That is a shutdown, not a failure; anything else is.
-        if rclpy.ok():
+        elif rclpy.ok():
             raise
     finally:
         if node is not None:

@@ -18,7 +18,8 @@ from ..core.solvers.explicit import DIVERGENCE_METHODS
 
 __all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'pin_set',
            'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS',
-           'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS']
+           'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS', 'MIN_DT', 'OBSERVER_RUNTIME',
+           'unknown_parameters', 'params_files', 'node_sections']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -26,6 +27,11 @@ PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_e
 MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
 #: run-time parameters that must be non-negative floats
 RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period')
+#: the run-time parameters an ``observe_only`` node still lets change (they touch only how
+#: it draws and logs, not the physics or what it accepts)
+OBSERVER_RUNTIME = ('coloring', 'wireframe', 'status_period')
+#: [s] the smallest time step: below it sim time would crawl at any real-time factor
+MIN_DT = 1e-6
 
 
 class ConfigError(ValueError):
@@ -65,8 +71,8 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                  fp=_fp(0.0, 1e6))),
     'material.density': (0.2, _desc('Mass per unit area mu [kg/m^2]', fp=_fp(0.0, 1e6))),
     'material.damping': (0.1, _desc('Damping rho [kg/(m^2 s)] (Eq. 1)', fp=_fp(0.0, 1e6))),
-    'dt': (2e-4, _desc('Time step [s]; must not exceed the critical step of the mesh and '
-                       'material', fp=_fp(0.0, 1.0))),
+    'dt': (2e-4, _desc('Time step [s], at least 1e-6; must not exceed the critical step '
+                       'of the mesh and material', fp=_fp(0.0, 1.0))),
     'publish_rate': (30.0, _desc('Ticks per second: mesh, energy and /clock are published '
                                  'every tick', True, fp=_fp(0.1, 1000.0))),
     'gravity': ([0.0, 0.0, -9.81], _desc('Gravitational acceleration [m/s^2], 3 values')),
@@ -79,7 +85,8 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
     'force_timeout': (1.0, _desc('Forces lapse after this many seconds without a new '
                                  'message (0 = hold) [s]', fp=_fp(0.0, 1e6))),
-    'max_force': (10.0, _desc('Largest accepted force per row [N]', fp=_fp(0.0, 1e9))),
+    'max_force': (10.0, _desc('Largest force on one vertex [N]: per row, and summed over '
+                              'the rows and topics that load the vertex', fp=_fp(0.0, 1e9))),
     'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
                                       fp=_fp(0.0, 1e9))),
     'coloring': ('energy', _desc('Mesh colouring: ' + ', '.join(COLORINGS))),
@@ -95,6 +102,9 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'handles.max_speed': (2.0, _desc('Fastest accepted handle target motion [m/s]: a target '
                                      'further from the last one is refused',
                                      fp=_fp(1e-3, 100.0))),
+    'observe_only': (False, _desc('Serve the cloth read-only: no command topics, no '
+                                  'reset/pause/grasp services, and no run-time change of '
+                                  'any parameter but ' + ', '.join(OBSERVER_RUNTIME), True)),
     'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
                                     'obstacles.<name>.shape and its geometry (README); '
                                     "[''] for none", True)),
@@ -149,10 +159,14 @@ def vec3(value, name: str) -> np.ndarray:
     return arr
 
 
-def check_dt(dt: float, critical: float) -> float:
-    """``dt`` if it is positive and within the critical step, else ConfigError."""
+def check_dt(dt: float, critical: float = math.inf) -> float:
+    """``dt`` if it is at least :data:`MIN_DT` and within the critical step, else
+    ConfigError."""
     if not (dt > 0 and math.isfinite(dt)):
         raise ConfigError(f'dt must be positive, got {dt!r}')
+    if dt < MIN_DT:
+        raise ConfigError(f'dt = {dt:.3g} s is below {MIN_DT:g} s: simulation time would '
+                          'hardly move')
     if dt > critical:
         raise ConfigError(f'dt = {dt:.3g} s exceeds the critical step {critical:.3g} s '
                           'of this mesh and material (the membrane wave speed over the '
@@ -197,3 +211,63 @@ def pinned_indices(mesh, indices, sets) -> np.ndarray:
         idx.extend(pin_set(mesh, s).tolist())
     return np.unique(np.array(idx, dtype=np.int64))
 
+
+
+def unknown_parameters(given, known) -> List[str]:
+    """The names in ``given`` (a params file's or the command line's) that ``known`` (the
+    node's declarations, with ``use_sim_time`` and the other names rclpy declares) does
+    not have, sorted."""
+    return sorted(set(given) - set(known))
+
+
+def params_files(argv) -> List[str]:
+    """The ``--params-file`` paths of the ROS arguments in ``argv``."""
+    out, ros = [], False
+    args = list(argv or [])
+    for i, a in enumerate(args):
+        if a == '--ros-args':
+            ros = True
+        elif a == '--':
+            ros = False
+        elif ros and a == '--params-file' and i + 1 < len(args):
+            out.append(args[i + 1])
+    return out
+
+
+def _sections(tree, prefix=''):
+    """The node paths of a params file's tree: every key path whose value holds
+    ``ros__parameters``."""
+    if not isinstance(tree, dict):
+        return []
+    out = []
+    for key, value in tree.items():
+        path = (prefix + '/' + str(key).strip('/')).replace('//', '/')
+        if isinstance(value, dict) and 'ros__parameters' in value:
+            out.append(path)
+        out += _sections(value, path) if isinstance(value, dict) else []
+    return out
+
+
+def _matches(pattern: str, fqn: str) -> bool:
+    """rcl's node-name wildcards: ``*`` is one token, ``**`` any number of them; a name
+    without a leading slash is in the root namespace (as rcl reads it)."""
+    import re
+    tokens = [t for t in pattern.strip('/').split('/') if t]
+    regex = '/'.join('.*' if t == '**' else '[^/]*' if t == '*' else re.escape(t)
+                     for t in tokens)
+    if pattern.strip('/') == '**':
+        return True
+    return re.fullmatch('/' + regex.replace('.*/', '(.*/)?'), fqn) is not None
+
+
+def node_sections(path: str, fqn: str) -> Tuple[List[str], List[str]]:
+    """(the sections of params file ``path`` that apply to node ``fqn``, all its
+    sections); ConfigError if it cannot be read."""
+    import yaml
+    try:
+        with open(path) as fh:
+            tree = yaml.safe_load(fh)
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f'{path}: {str(exc).splitlines()[0]}') from None
+    every = _sections(tree)
+    return [s for s in every if _matches(s, fqn)], every

@@ -19,7 +19,9 @@ ratios measured in one run. Three parts:
 3. ``node``: the installed ``cloth_node`` started as ``ros2 run`` starts it: process start to
    first mesh message with a cold and a warm compile cache, and the real-time factor of a
    40 x 40 cloth publishing at 30 Hz, beside the real-time factor of the same cloth
-   stepped alone in this process right before (what its step allowed in that minute).
+   stepped alone in this process right before (what its step allowed in that minute);
+   and the shipped ``config/cloth.yaml`` alone, beside one busy process, and paused (its
+   CPU use).
 """
 from __future__ import annotations
 
@@ -344,10 +346,20 @@ def _node_params(path: str, n: int, material: Material, dt: float, pinned):
 """)
 
 
-def run_node(params: str, watch_s: float, env=None):
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far [s] (/proc/<pid>/stat)."""
+    with open(f'/proc/{pid}/stat') as fh:
+        fields = fh.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def run_node(params: str, watch_s: float, env=None, busy: bool = False,
+             paused_s: float = 0.0):
     """Start the installed cloth_node as ``ros2 run`` does; return (seconds from process
     start to the first mesh message, mesh messages per second, real-time factor from the
-    energy topic's sim_time over ``watch_s`` s after the first message)."""
+    energy topic's sim_time over ``watch_s`` s after the first message, and the share of
+    one core the node used over ``paused_s`` s paused, or nan). ``busy``: one other
+    process spins on a core during the watch (a shared machine)."""
     import rclpy
     from ament_index_python.packages import get_package_prefix
     from diagnostic_msgs.msg import DiagnosticArray
@@ -380,15 +392,34 @@ def run_node(params: str, watch_s: float, env=None):
             raise RuntimeError('cloth_node published no mesh: ' + (proc.stderr.read()
                                                                    if proc.poll() else ''))
         first = meshes[0] - t0
-        end = time.monotonic() + watch_s
-        while time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.01)
+        hog = (subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+               if busy else None)
+        try:
+            end = time.monotonic() + watch_s
+            while time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.01)
+        finally:
+            if hog is not None:
+                hog.kill()
+                hog.wait()
         # the first second warms the executor and the step-cost estimate: skip it
         win = [e for e in energies if e[0] >= meshes[0] + 1.0]
         rtf = ((win[-1][1] - win[0][1]) / (win[-1][0] - win[0][0])
                if len(win) > 2 else float('nan'))
         rate = (sum(1 for m in meshes if m >= meshes[0] + 1.0) / (watch_s - 1.0)
                 if watch_s > 1 else float('nan'))
+        paused = float('nan')
+        if paused_s > 0:
+            from std_srvs.srv import SetBool
+            cli = node.create_client(SetBool, '/cloth_node/pause')
+            cli.wait_for_service(timeout_sec=10.0)
+            fut = cli.call_async(SetBool.Request(data=True))
+            ex.spin_until_future_complete(fut, timeout_sec=10.0)
+            ex.spin_once(timeout_sec=0.5)
+            c0, w0 = _cpu_seconds(proc.pid), time.monotonic()
+            while time.monotonic() < w0 + paused_s:
+                ex.spin_once(timeout_sec=0.05)
+            paused = (_cpu_seconds(proc.pid) - c0) / (time.monotonic() - w0)
     finally:
         proc.terminate()
         try:
@@ -398,7 +429,7 @@ def run_node(params: str, watch_s: float, env=None):
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-    return first, rate, rtf
+    return first, rate, rtf, paused
 
 
 def part_node(watch_s: float):
@@ -445,9 +476,21 @@ def part_node(watch_s: float):
             probe.dt = dt
             alone_rtf, alone_ms = step_rtf(probe)
             _node_params(params, 40, mat, dt, pinned)
-            _, rate, rtf = run_node(params, watch_s)
+            _, rate, rtf, _ = run_node(params, watch_s)
             print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.3f} | '
                   f'{alone_rtf:.2f} | {alone_ms:.3f} |', flush=True)
+        shipped_file = os.path.join(get_package_share_directory('cosserat_ros'), 'config',
+                                    'cloth.yaml')
+        print('\nThe shipped config/cloth.yaml on a shared machine: the node alone, then '
+              'with one other process spinning on a core all the time (target: at least '
+              '40% of the RTF alone), and the CPU it uses paused (target: under 5% of a '
+              'core).\n')
+        _table(('case', 'mesh msgs/s', 'RTF', 'RTF / alone', 'paused: share of a core'))
+        _, rate0, rtf0, paused = run_node(shipped_file, watch_s, paused_s=5.0)
+        _, rate1, rtf1, _ = run_node(shipped_file, watch_s, busy=True)
+        print(f'| alone | {rate0:.1f} | {rtf0:.3f} | 1 | {paused:.3f} |')
+        print(f'| one busy process beside it | {rate1:.1f} | {rtf1:.3f} | {rtf1 / rtf0:.2f} '
+              '| |', flush=True)
 
 
 def main(argv=None):
