@@ -71,7 +71,9 @@ def test_recorded_bag_reads_back_with_an_independent_reader(bag):
                 sim_stamps[conn.topic].append(head.stamp.sec * 10 ** 9 + head.stamp.nanosec)
         duration = (reader.end_time - reader.start_time) * 1e-9
     for topic, ts in stamps.items():
-        assert np.all(np.diff(ts) >= 0), topic                # monotonic receive times
+        assert np.all(np.diff(ts) >= 0), topic                # sim time, no reset: monotonic
+    # log times are simulation time: each mesh is logged within two publish periods of
+    # its header stamp (the node publishes /clock first, so mostly at the stamp itself)
     n_mesh = len(stamps['/cloth_node/mesh'])
     # each tick publishes a mesh and an energy message with the same simulation-time stamp;
     # the two subscriptions match the publisher at slightly different moments, so compare
@@ -81,8 +83,75 @@ def test_recorded_bag_reads_back_with_an_independent_reader(bag):
     inside = [set(a[(a >= lo) & (a <= hi)].tolist()) for a in (mesh_t, energy_t)]
     assert inside[0] == inside[1]
     assert len(inside[0]) >= min(len(mesh_t), len(energy_t)) - 5
+    lag = np.abs(np.array(stamps['/cloth_node/mesh']) - mesh_t) * 1e-9
+    assert lag.max() <= 2.0 / RATE, lag.max()
     assert 0.6 * RATE * duration <= n_mesh <= 1.2 * RATE * duration + 2, (n_mesh, duration)
     assert 1 <= len(stamps['/diagnostics']) <= duration + 2
+
+
+def test_bag_crcs_check_out_with_the_mcap_reader(bag):
+    # Foxglove's own reader, with CRC validation: every chunk, the data section and the
+    # summary carry a CRC (a bag with zeros would pass unchecked), and a flipped byte fails
+    import io
+    from mcap.reader import make_reader
+    from mcap.records import DataEnd, Footer
+    from mcap.stream_reader import CRCValidationError, StreamReader
+    data = (bag / 'cloth.mcap').read_bytes()
+    reader = make_reader(io.BytesIO(data), validate_crcs=True)
+    n = sum(1 for _ in reader.iter_messages())
+    summary = reader.get_summary()
+    assert n == summary.statistics.message_count > 0
+    assert {c.topic for c in summary.channels.values()} >= {'/cloth_node/mesh', '/clock'}
+    records = list(StreamReader(io.BytesIO(data), validate_crcs=True).records)
+    assert [r.data_section_crc for r in records if isinstance(r, DataEnd)][0] != 0
+    assert [r.summary_crc for r in records if isinstance(r, Footer)][0] != 0
+    bad = bytearray(data)
+    bad[len(data) // 3] ^= 0xFF
+    with pytest.raises(CRCValidationError):
+        list(make_reader(io.BytesIO(bytes(bad)), validate_crcs=True).iter_messages())
+
+
+def test_a_write_failure_stops_the_recorder_with_a_readable_bag(node, tmp_path):
+    # a file-size limit stands in for a full disk: the recorder stops with one line and
+    # exit 1, and what it wrote before is a complete bag (metadata.yaml included)
+    import io
+    import resource
+    from mcap.reader import make_reader
+    out = tmp_path / 'limited'
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1_500_000, 1_500_000))
+    res = subprocess.run([exe('record'), '-o', str(out), '--wait', '150', '--duration', '60'],
+                         capture_output=True, text=True, timeout=120, preexec_fn=limit)
+    assert res.returncode == 1, res.stderr
+    assert 'Traceback' not in res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if 'error' in ln.lower()]
+    assert len(errors) == 1 and 'File too large' in errors[0], res.stderr
+    assert (out / 'metadata.yaml').is_file()
+    with AnyReader([out]) as reader:
+        count = reader.message_count
+        got = sum(1 for _ in reader.messages())
+    assert count == got > 0
+    with open(out / 'limited.mcap', 'rb') as fh:
+        assert sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages()) == count
+
+
+def test_clock_is_in_every_default_recording(node, tmp_path):
+    # /clock used to be left out of a recording now and then (7 of 23) when discovery
+    # showed it a moment after the other topics: 10 of 10 must have it
+    outs = [tmp_path / f'r{i}' for i in range(10)]
+    for batch in (outs[:5], outs[5:]):
+        procs = [subprocess.Popen([exe('record'), '-o', str(o), '--wait', '150',
+                                   '--duration', '1'], stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE, text=True) for o in batch]
+        for p in procs:
+            _, err = p.communicate(timeout=120)
+            assert p.returncode == 0, err
+    for o in outs:
+        with AnyReader([o]) as reader:
+            counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts.get('/clock', 0) > 0 and counts.get('/cloth_node/mesh', 0) > 0, \
+            (o.name, counts)
 
 
 def test_existing_bag_is_never_overwritten(bag):

@@ -859,6 +859,10 @@ class ClothNode(Node):
         if not np.all(np.isfinite(x)):       # never publish a NaN (step() restores state)
             return
         stamp = self.stamp_ns()
+        if self.clock_pub is not None:     # first: a recorder on sim time logs what follows
+            c = Clock()                    # at this very instant
+            c.clock.sec, c.clock.nanosec = divmod(stamp, 1_000_000_000)
+            self.clock_pub.publish(c)
         pinned = np.flatnonzero(self.sim.pinned)
         self.mesh_pub.publish(mesh_marker_array(
             x, self.mesh.faces, self.vertex_colors(), stamp, self.frame_id,
@@ -875,10 +879,6 @@ class ClothNode(Node):
                                    or mono - self._last_obstacle_pub >= 1.0):
             self._last_obstacle_pub = mono
             self.publish_obstacles(stamp)
-        if self.clock_pub is not None:
-            c = Clock()
-            c.clock.sec, c.clock.nanosec = divmod(stamp, 1_000_000_000)
-            self.clock_pub.publish(c)
 
     def _status(self, name: str, level: bytes, message: str, values: Dict[str, object],
                 stamp: Optional[int] = None) -> DiagnosticArray:

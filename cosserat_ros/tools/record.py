@@ -1,17 +1,30 @@
 """``record``: write the cloth's topics to a rosbag2 directory (MCAP storage, Jazzy default).
 
-    record -o DIR [--duration S] [--node cloth_node] [TOPIC ...]
+    record -o DIR [--duration S] [--node cloth_node] [--wall-time] [TOPIC ...]
 
-Default topics: the node's ``~/mesh`` and ``~/energy``, ``/diagnostics``, and ``/clock`` when
-it is published. Messages are subscribed with their real types and written as the
-serialised bytes that arrive (no deserialise / re-serialise round trip), stamped with their
-receive time, through the ``rosbags`` library (``metadata.yaml`` plus ``DIR/DIR.mcap``), so
-``ros2 bag info``, ``ros2 bag play`` and Foxglove open the result.
+Default topics: the node's ``~/mesh`` and ``~/energy``, ``/diagnostics`` and ``/clock``.
+Messages are subscribed with their real types and written as the serialised bytes that
+arrive (no deserialise / re-serialise round trip) by :mod:`.bagfile` (``metadata.yaml``
+plus ``DIR/DIR.mcap``, CRCs written), so ``ros2 bag info``, ``ros2 bag play``, Foxglove and
+the ``mcap`` libraries open the result.
+
+Log times are simulation time, as ``ros2 bag record --use-sim-time`` gives: the recorder
+follows ``/clock`` (the node publishes it before the state of the same instant, so a mesh
+is logged at its header stamp) and the bag plays back on its own clock. ``--wall-time``
+logs receive times instead; without a ``/clock`` publisher the recorder says so and logs
+wall time.
+
+Topics: every requested topic is waited for up to ``--wait`` seconds; one still missing
+then is a warning naming it, and it is recorded from when it appears (the graph is looked
+at twice a second), so a topic that shows up late (``/clock`` does, now and then, by a few
+hundred ms of discovery) is not lost.
 
 Safety: an existing DIR is never overwritten or appended to; SIGINT, SIGTERM and the end of
-``--duration`` flush and close the bag; every completed 1 MiB chunk is flushed to disk at
-once, so a bag cut off by a crash keeps everything up to its last complete chunk
-(``record --recover DIR`` then writes the missing ``metadata.yaml``).
+``--duration`` flush and close the bag; every completed 1 MiB chunk is synced to disk at
+once. A write that fails (full disk, file-size limit) stops the recorder with a one-line
+reason and exit 1 after closing the bag readable with every complete chunk
+(:mod:`.bagfile`); a bag cut off by a crash keeps its complete chunks too (``record
+--recover DIR`` then writes the missing ``metadata.yaml``).
 """
 from __future__ import annotations
 
@@ -38,38 +51,6 @@ def resolve(topic: str, node_name: str) -> str:
     if topic.startswith('~/'):
         return f'/{node_name}/{topic[2:]}'
     return topic if topic.startswith('/') else '/' + topic
-
-
-class _Bag:
-    """A rosbags Writer that flushes each completed chunk to disk."""
-
-    def __init__(self, path: Path):
-        from rosbags.rosbag2 import StoragePlugin, Writer
-        from rosbags.typesys import get_typestore, Stores
-        self.typestore = get_typestore(Stores.ROS2_JAZZY)
-        self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self.writer.open()
-        self.connections: Dict[str, object] = {}
-        self.counts: Dict[str, int] = {}
-        self._chunks = 0
-
-    def add(self, topic: str, type_name: str):
-        self.connections[topic] = self.writer.add_connection(topic, type_name,
-                                                             typestore=self.typestore)
-        self.counts[topic] = 0
-
-    def write(self, topic: str, stamp_ns: int, data: bytes):
-        self.writer.write(self.connections[topic], stamp_ns, data)
-        self.counts[topic] += 1
-        storage = getattr(self.writer, 'storage', None)
-        chunks = len(getattr(storage, 'chunks', ()))
-        if chunks != self._chunks:            # a chunk was completed: make it durable
-            self._chunks = chunks
-            storage.bio.flush()
-            os.fsync(storage.bio.fileno())
-
-    def close(self):
-        self.writer.close()
 
 
 def scan_mcap(path: Path):
@@ -159,12 +140,13 @@ def recover(path: Path) -> int:
     if not mcap.exists():
         print(f'record: error: {mcap} not found', file=sys.stderr)
         return 2
+    from .bagfile import BagWriter
     tmp = path.parent / f'.{path.name}.recovering'
     if tmp.exists():
         shutil.rmtree(tmp)
-    bag = _Bag(tmp)
+    bag = BagWriter(tmp)
     for topic, msgtype, stamp, data in scan_mcap(mcap):
-        if topic not in bag.connections:
+        if topic not in bag.topics:
             bag.add(topic, msgtype)
         bag.write(topic, stamp, data)
     bag.close()
@@ -179,11 +161,29 @@ def recover(path: Path) -> int:
     return 0
 
 
+def _qos_of(node, topic: str):
+    """(the QoS to subscribe ``topic`` with, its metadata text): reliable, keep-last 100,
+    transient-local if a publisher latches it."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from .bagfile import qos_yaml
+    infos = node.get_publishers_info_by_topic(topic)
+    latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                  for i in infos)
+    reliable = any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+    depth = max([i.qos_profile.depth for i in infos] + [1])
+    return (QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                       else DurabilityPolicy.VOLATILE),
+            qos_yaml(reliable or not infos, latched, depth))
+
+
 def main(argv: List[str] = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    import signal
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.parameter import Parameter
+    from .bagfile import BagWriter, BagWriteError
     args_ros = rclpy.utilities.remove_ros_args(['record'] + list(argv))[1:]
     ap = argparse.ArgumentParser(prog='record', description='Record the cloth to a rosbag2 '
                                  'directory (MCAP).')
@@ -193,6 +193,8 @@ def main(argv: List[str] = None) -> int:
     ap.add_argument('--node', default='cloth_node', help='node whose ~/ topics to record')
     ap.add_argument('--wait', type=float, default=30.0,
                     help='seconds to wait for the topics to appear')
+    ap.add_argument('--wall-time', action='store_true',
+                    help='log receive (wall-clock) times instead of simulation time')
     ap.add_argument('--recover', metavar='DIR', help='write metadata.yaml for a bag cut off '
                     'by a crash, then exit')
     a = ap.parse_args(args_ros)
@@ -208,10 +210,13 @@ def main(argv: List[str] = None) -> int:
     if a.duration < 0:
         print('record: error: --duration must be >= 0', file=sys.stderr)
         return 2
+    # past a file-size limit a write then fails (EFBIG) instead of killing the process
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     requested = [resolve(t, a.node) for t in (a.topics or DEFAULT_TOPICS)]
-    optional = set() if a.topics else {'/clock'}
     rclpy.init(args=['record'] + list(argv))
-    node = rclpy.create_node('cloth_recorder')
+    node = rclpy.create_node('cloth_recorder', parameter_overrides=[
+        Parameter('use_sim_time', value=not a.wall_time)])
+    log = node.get_logger()
     bag = None
     code = 0
     try:
@@ -220,35 +225,74 @@ def main(argv: List[str] = None) -> int:
         while time.monotonic() < deadline:
             graph = dict(node.get_topic_names_and_types())
             types = {t: graph[t][0] for t in requested if t in graph}
-            if all(t in types for t in requested if t not in optional):
+            if len(types) == len(requested):
                 break
             rclpy.spin_once(node, timeout_sec=0.1)
-        missing = [t for t in requested if t not in types and t not in optional]
-        if missing:
-            print(f'record: error: no publisher of {", ".join(missing)} after {a.wait:g} s',
+        if not types:
+            print(f'record: error: no publisher of {", ".join(requested)} after {a.wait:g} s',
                   file=sys.stderr)
             return 2
-        bag = _Bag(out)
+        missing = [t for t in requested if t not in types]
+        if missing:
+            log.warning(f'no publisher of {", ".join(missing)} after {a.wait:g} s: recording '
+                        'the others, and these from when they appear')
+        sim_time = not a.wall_time and '/clock' in dict(node.get_topic_names_and_types())
+        if not a.wall_time and not sim_time:
+            log.warning('no /clock publisher: logging wall-clock receive times')
+        if sim_time:                 # the latched /clock first: log times start right
+            end = time.monotonic() + 5.0
+            while node.get_clock().now().nanoseconds == 0 and time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.05)
+        clock = node.get_clock()
+
+        def stamp() -> int:
+            return clock.now().nanoseconds if sim_time else time.time_ns()
+        bag = BagWriter(out)
+        failure: List[str] = []
+
+        def subscribe(topic: str, type_name: str):
+            qos, text = _qos_of(node, topic)
+            bag.add(topic, type_name, text)
+
+            def on_message(data, t=topic):
+                if failure:
+                    return
+                try:
+                    bag.write(t, stamp(), data)
+                except BagWriteError as exc:
+                    failure.append(str(exc))
+            node.create_subscription(message_class(type_name), topic, on_message, qos,
+                                     raw=True)
         for topic, type_name in types.items():
-            bag.add(topic, type_name)
-            infos = node.get_publishers_info_by_topic(topic)
-            latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                          for i in infos)
-            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                             else DurabilityPolicy.VOLATILE)
-            node.create_subscription(
-                message_class(type_name), topic,
-                lambda data, t=topic: bag.write(t, time.time_ns(), data), qos, raw=True)
-        node.get_logger().info(f'recording {", ".join(types)} to {out}')
+            subscribe(topic, type_name)
+        log.info(f'recording {", ".join(types)} to {out}'
+                 f' ({"simulation" if sim_time else "wall-clock"} log times)')
         end = time.monotonic() + a.duration if a.duration > 0 else None
-        while rclpy.ok() and (end is None or time.monotonic() < end):
+        next_look = time.monotonic() + 0.5
+        while rclpy.ok() and not failure and (end is None or time.monotonic() < end):
             rclpy.spin_once(node, timeout_sec=0.05)
+            if missing and time.monotonic() >= next_look:
+                next_look = time.monotonic() + 0.5
+                graph = dict(node.get_topic_names_and_types())
+                for t in [t for t in missing if t in graph]:
+                    subscribe(t, graph[t][0])
+                    missing.remove(t)
+                    log.info(f'{t} appeared: recording it too')
+        if failure:
+            print(f'record: error: writing {out} failed: {failure[0]}', file=sys.stderr)
+            code = 1
+    except BagWriteError as exc:                      # while adding a topic
+        print(f'record: error: writing {out} failed: {exc}', file=sys.stderr)
+        code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if bag is not None:
-            bag.close()
+            try:
+                bag.close()
+            except BagWriteError as exc:
+                print(f'record: error: closing {out} failed: {exc}', file=sys.stderr)
+                code = 1
             print(f'record: wrote {sum(bag.counts.values())} messages to {out} '
                   f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())})')
         node.destroy_node()
