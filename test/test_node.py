@@ -638,7 +638,11 @@ def test_handles_grasp_move_report_and_release_through_ros():
 
 def test_summed_rows_cannot_exceed_max_force(h):
     # 1,000 rows of 10 N on one vertex (each within max_force = 10 N) and point forces that
-    # land on a vertex already loaded by ~/vertex_forces are refused; the cloth runs on
+    # land on a vertex already loaded by ~/vertex_forces are refused. Paused, so that the
+    # point below stays on the vertex it is read from
+    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
+    fut = cli.call_async(SetBool.Request(data=True))
+    h.spin_until(fut.done)
     centre = (N // 2) * (N + 1) + N // 2
     h.send('vertex', rows(np.tile([centre, 0.0, 0.0, 10.0], (1000, 1))))
     assert h.node.rejected['vertex_forces'] == 1 and not h.node.sim.vertex_forces.any()
@@ -648,6 +652,8 @@ def test_summed_rows_cannot_exceed_max_force(h):
     h.send('point', rows([x[0], x[1], x[2], 0.0, 0.0, 9.0]))     # all of it on the centre
     assert h.node.rejected['point_forces'] == 1
     assert h.node.sim.vertex_forces.sum(axis=0)[2] == pytest.approx(8.0)
+    fut = cli.call_async(SetBool.Request(data=False))
+    h.spin_until(fut.done)
     h.spin(0.3)
     assert h.node.diverged is None
 

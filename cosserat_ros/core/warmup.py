@@ -138,6 +138,11 @@ def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
     return 0
 
 
+#: a closed mesh of four faces (vertices, faces): compiles the mesh distance field cheaply
+TETRAHEDRON = (np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+               np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+
+
 def _compile(tiled: bool, coupled: bool):
     from ..fast import step as fast_step
     from .material import Material
@@ -152,6 +157,12 @@ def _compile(tiled: bool, coupled: bool):
     from .solvers.update import contact_range
     contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v, sim.control,
                   sim.coefficients, sim.dt)
+    # what the node's commands call: the closest point of ~/point_forces, the distance
+    # field of a mesh obstacle from ~/obstacles
+    from .contact import mesh_distance_field
+    from .surface_query import closest_points
+    closest_points(sim.state.x, sim.model.mesh.faces, np.zeros((1, 3)))
+    mesh_distance_field(*TETRAHEDRON, 0.25, 0.1)
     # the report's own kernels (its internal force is the step's, which the node compiles)
     energy.report(sim.model, sim.coefficients, sim.state, sim.control, sim.dt, sim._scratch,
                   np.zeros((sim.n_vertices, 3)))

@@ -58,6 +58,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..core import warmup
+from ..core.contact import mesh_distance_field
 from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
                               steps_tiled)
@@ -151,8 +152,11 @@ class ClothNode(Node):
         self.get_logger().info(
             f'{self.mesh}: kernels ready and critical dt {self.sim.critical_dt():.3g} s '
             f'found in {time.perf_counter() - t0:.2f} s')
-        # the closest-point query of ~/point_forces, compiled (or loaded) before any topic
+        # what the commands call, compiled (or loaded) before any topic: the closest-point
+        # query of ~/point_forces, the distance field of a mesh marker on ~/obstacles
         commands.point_forces(np.zeros((1, 6)), self.sim.positions, self.mesh.faces)
+        if not self.observe_only:
+            mesh_distance_field(*warmup.TETRAHEDRON, 0.25, 0.1)
         self.sim.gravity = gravity
         if len(pins):
             self.sim.pin(pins)
