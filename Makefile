@@ -9,7 +9,7 @@ ENV := AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHO
 DEPS_STAMP := $(VENV)/.deps-installed
 PKG_STAMP := $(VENV)/.pkg-installed
 BENCH_STAMP := $(VENV)/.bench-installed
-PKG_SOURCES := $(shell find cosserat_ros config resource -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
+PKG_SOURCES := $(shell find cosserat_ros config resource launch rviz -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
 .PHONY: install run test validate bench lint clean
@@ -29,7 +29,7 @@ $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	# the previous install's files first (a module moved or removed must not linger)
 	if [ -f build/install-record.txt ]; then xargs -d '\n' rm -f < build/install-record.txt; fi
 	rm -rf build/cosserat_ros_install && mkdir -p build
-	$(PY) setup.py --quiet egg_info --egg-base build \
+	$(PY) -W "ignore:setup.py install is deprecated" setup.py --quiet egg_info --egg-base build \
 	    build --build-base build/cosserat_ros_install \
 	    install --prefix $(CURDIR)/$(VENV) --record build/install-record.txt \
 	    --single-version-externally-managed >/dev/null

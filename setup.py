@@ -14,6 +14,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/meshes', glob('config/meshes/*')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.*')),
+        ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools'],
     # the peer engine of the benchmark only (requirements-bench.txt pins it)

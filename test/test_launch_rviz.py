@@ -1,0 +1,82 @@
+"""The launch files and the RViz config, checked statically (launch_ros and rviz have no
+wheels here): they are installed, parse, and name what the installed package has and what
+the node publishes."""
+import ast
+import os
+import xml.etree.ElementTree as ET
+
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+import yaml
+
+from cosserat_ros.ros.params import PARAMETERS
+
+SHARE = get_package_share_directory('cosserat_ros')
+PREFIX = get_package_prefix('cosserat_ros')
+
+
+def _executable_exists(package, executable):
+    return os.access(os.path.join(PREFIX, 'lib', package, executable), os.X_OK)
+
+
+def test_python_launch_file_parses_and_names_what_is_installed():
+    path = os.path.join(SHARE, 'launch', 'cloth.launch.py')
+    tree = ast.parse(open(path).read(), path)
+    funcs = [n.name for n in tree.body if isinstance(n, ast.FunctionDef)]
+    assert 'generate_launch_description' in funcs
+    nodes, args = [], {}
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call)):
+        name = getattr(call.func, 'id', getattr(call.func, 'attr', ''))
+        kw = {k.arg: k.value for k in call.keywords}
+        if name == 'Node':
+            nodes.append({k: v.value for k, v in kw.items() if isinstance(v, ast.Constant)})
+        if name == 'DeclareLaunchArgument':
+            args[call.args[0].value] = kw['default_value']
+    ours = [n for n in nodes if n.get('package') == 'cosserat_ros']
+    assert [n['executable'] for n in ours] == ['cloth_node']
+    assert _executable_exists('cosserat_ros', 'cloth_node')
+    # the default config: PathJoinSubstitution([share, 'config', 'cloth.yaml'])
+    parts = [e.value for e in args['config'].args[0].elts if isinstance(e, ast.Constant)]
+    assert os.path.isfile(os.path.join(SHARE, *parts)), parts
+    assert args['rviz'].value == 'false'
+    assert any('cloth.rviz' in ast.unparse(n) for n in ast.walk(tree)
+               if isinstance(n, ast.List))
+
+
+def test_xml_launch_file_is_the_twin():
+    root = ET.parse(os.path.join(SHARE, 'launch', 'cloth.launch.xml')).getroot()
+    assert root.tag == 'launch'
+    args = {a.get('name'): a.get('default') for a in root.iter('arg')}
+    prefix = '$(find-pkg-share cosserat_ros)/'
+    assert args['config'].startswith(prefix)
+    assert os.path.isfile(os.path.join(SHARE, args['config'][len(prefix):]))
+    node = next(n for n in root.iter('node') if n.get('pkg') == 'cosserat_ros')
+    assert node.get('exec') == 'cloth_node' and node.get('name') == 'cloth_node'
+    assert node.find('param').get('from') == '$(var config)'
+    rviz = next(n for n in root.iter('node') if n.get('pkg') == 'rviz2')
+    assert rviz.get('if') == '$(var rviz)'
+    assert os.path.isfile(os.path.join(SHARE, rviz.get('args').split(prefix)[1]))
+
+
+def test_rviz_config_shows_what_the_node_publishes(tmp_path):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from cosserat_ros.ros.node import ClothNode
+    cfg = yaml.safe_load(open(os.path.join(SHARE, 'rviz', 'cloth.rviz')))
+    manager = cfg['Visualization Manager']
+    assert manager['Global Options']['Fixed Frame'] == PARAMETERS['frame_id'][0]
+    shown = {d['Topic']['Value']: d['Class'] for d in manager['Displays'] if 'Topic' in d}
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = ClothNode(context=ctx, parameter_overrides=[
+            Parameter('mesh.nx', value=4), Parameter('mesh.ny', value=4)])
+        published = dict(node.get_publisher_names_and_types_by_node('cloth_node', '/'))
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    for topic, cls in shown.items():
+        assert topic in published, topic
+        assert cls == 'rviz_default_plugins/MarkerArray'
+        assert published[topic] == ['visualization_msgs/msg/MarkerArray']
+    assert {'/cloth_node/mesh', '/cloth_node/obstacle_markers'} <= set(shown)
