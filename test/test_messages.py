@@ -120,3 +120,31 @@ def test_building_a_large_mesh_message_is_cheap():
     per = (time.perf_counter() - t) / 5
     # not a timing bound (shared machines): just that no per-point Python objects are made
     assert len(data) > 38400 * 40 and per < 1.0
+
+
+def test_point_cloud_and_shape_mesh_are_what_rclpy_serialises():
+    from geometry_msgs.msg import Point
+    from sensor_msgs.msg import PointCloud2, PointField
+    from shape_msgs.msg import Mesh, MeshTriangle
+    from cosserat_ros.ros.conversions import point_cloud, POINT_FIELDS, shape_mesh
+    m = grid_mesh(3, 2)
+    rng = np.random.default_rng(0)
+    x = m.vertices + 0.01 * rng.standard_normal(m.vertices.shape)
+    v = rng.standard_normal(x.shape)
+    wire = point_cloud(x, v, 3_250_000_000, 'world')
+    msg = deserialize_message(wire, PointCloud2)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (3, 250_000_000)
+    assert msg.height == 1 and msg.width == m.n_vertices and msg.point_step == 24
+    assert [f.name for f in msg.fields] == list(POINT_FIELDS)
+    assert all(f.datatype == PointField.FLOAT32 and f.count == 1 for f in msg.fields)
+    data = np.frombuffer(bytes(msg.data), dtype='<f4').reshape(-1, 6)
+    np.testing.assert_array_equal(data[:, :3], x.astype(np.float32))
+    np.testing.assert_array_equal(data[:, 3:], v.astype(np.float32))
+    assert msg.is_dense and not msg.is_bigendian
+    assert len(serialize_message(msg)) == len(wire)
+    wire = shape_mesh(x, m.faces)
+    mesh = deserialize_message(wire, Mesh)
+    ref = Mesh(triangles=[MeshTriangle(vertex_indices=[int(i) for i in f]) for f in m.faces],
+               vertices=[Point(x=float(a), y=float(b), z=float(c)) for a, b, c in x])
+    assert serialize_message(ref) == wire
+    assert [list(t.vertex_indices) for t in mesh.triangles] == m.faces.tolist()

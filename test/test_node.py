@@ -98,6 +98,8 @@ def field(v, frame='world'):
 
 def test_publishes_mesh_energy_and_diagnostics(h):
     assert h.spin_until(lambda: len(h.diags) > 0 and len(h.energies) > 3, 10)
+    published = dict(h.node.get_publisher_names_and_types_by_node('cloth_node', '/'))
+    assert '/cloth_node/points' not in published and '/cloth_node/shape' not in published
     marker = h.meshes[-1].markers[0]
     assert len(marker.points) == 3 * h.node.mesh.n_faces
     assert marker.header.frame_id == 'world'
@@ -703,3 +705,21 @@ def test_a_paused_node_publishes_on_change_and_once_a_second(h):
     h.meshes.clear()
     h.spin(0.5)
     assert len(h.meshes) >= 10                                # running: every tick again
+
+
+def test_points_and_shape_are_published_when_asked():
+    from sensor_msgs.msg import PointCloud2
+    from shape_msgs.msg import Mesh
+    harness = Harness(**{'publish.points': True, 'publish.shape': True})
+    try:
+        clouds, shapes = [], []
+        harness.peer.create_subscription(PointCloud2, '/cloth_node/points', clouds.append, 10)
+        harness.peer.create_subscription(Mesh, '/cloth_node/shape', shapes.append, 10)
+        assert harness.spin_until(lambda: clouds and shapes, 10)
+        n = harness.node.mesh.n_vertices
+        assert clouds[-1].width == n and len(clouds[-1].data) == 24 * n
+        assert clouds[-1].header.frame_id == 'world'
+        assert len(shapes[-1].vertices) == n
+        assert len(shapes[-1].triangles) == harness.node.mesh.n_faces
+    finally:
+        harness.close()

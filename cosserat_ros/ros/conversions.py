@@ -20,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ['CdrWriter', 'mesh_marker_array', 'colormap', 'percentile', 'TRIANGLE_LIST',
+__all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
            'PINS_ID', 'HANDLES_ID']
 
@@ -150,6 +150,53 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     if handles is not None and len(handles) > 0:
         _marker(w, sec, nanosec, frame_id, HANDLES_ID, SPHERE_LIST, 3 * pin_size,
                 handle_color, np.ascontiguousarray(handles, dtype=np.float64), None)
+    return w.bytes()
+
+
+#: sensor_msgs/PointField datatype FLOAT32
+_FLOAT32 = 7
+#: the fields of ``~/points``, float32 each, in this order
+POINT_FIELDS = ('x', 'y', 'z', 'vx', 'vy', 'vz')
+
+
+def point_cloud(positions: np.ndarray, velocities: np.ndarray, stamp_ns: int,
+                frame_id: str) -> bytes:
+    """Serialised ``sensor_msgs/PointCloud2``: one point per vertex in vertex order, float32
+    fields x y z [m] and vx vy vz [m/s] (:data:`POINT_FIELDS`), little-endian, dense, one
+    row."""
+    n = len(positions)
+    data = np.empty((n, 6), dtype='<f4')
+    data[:, :3] = positions
+    data[:, 3:] = velocities
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    w = CdrWriter()
+    _header(w, sec, nanosec, frame_id)
+    w.prim('I', 1)                                   # height
+    w.prim('I', n)                                   # width
+    w.prim('I', len(POINT_FIELDS))
+    for k, name in enumerate(POINT_FIELDS):
+        w.string(name)
+        w.prim('I', 4 * k)                           # offset
+        w.prim('B', _FLOAT32)
+        w.prim('I', 1)                               # count
+    w.prim('?', False)                               # is_bigendian
+    w.prim('I', 24)                                  # point_step
+    w.prim('I', 24 * n)                              # row_step
+    w.array(data.reshape(-1).view(np.uint8), '<u1')
+    w.prim('?', True)                                # is_dense
+    return w.bytes()
+
+
+def shape_mesh(positions: np.ndarray, faces: np.ndarray) -> bytes:
+    """Serialised ``shape_msgs/Mesh`` (what MoveIt collision objects take): the triangles
+    as vertex indices, the vertices [m]. It has no header: it is in the node's frame_id at
+    the time of the ``~/mesh`` message of the same tick."""
+    w = CdrWriter()
+    w.prim('I', len(faces))
+    if len(faces):
+        w._align(4)
+        w._raw(np.ascontiguousarray(faces, dtype='<u4').tobytes())
+    w.array(positions, '<f8', count=len(positions))
     return w.bytes()
 
 

@@ -7,6 +7,10 @@ name                     type                                   direction
 =======================  =====================================  ============================
 ``~/mesh``               visualization_msgs/MarkerArray         out, every tick
 ``~/energy``             diagnostic_msgs/DiagnosticArray        out, every tick
+``~/points``             sensor_msgs/PointCloud2                out, every tick
+                                                                (``publish.points``)
+``~/shape``              shape_msgs/Mesh                        out, every tick
+                                                                (``publish.shape``)
 ``/diagnostics``         diagnostic_msgs/DiagnosticArray        out, ~1 Hz
 ``/clock``               rosgraph_msgs/Clock                    out (``publish_clock``)
 ``~/vertex_forces``      std_msgs/Float64MultiArray             in: rows [index, fx, fy, fz]
@@ -52,6 +56,8 @@ from rclpy.serialization import deserialize_message
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
+from sensor_msgs.msg import PointCloud2
+from shape_msgs.msg import Mesh
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -63,7 +69,7 @@ from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
                               steps_tiled)
 from . import commands
-from .conversions import colormap, mesh_marker_array, percentile
+from .conversions import colormap, mesh_marker_array, percentile, point_cloud, shape_mesh
 from .pacing import Pacer, ThreadTuner
 from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
                      MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
@@ -192,6 +198,10 @@ class ClothNode(Node):
         self.mesh_pub = self.create_publisher(MarkerArray, '~/mesh', reliable)
         self.energy_pub = self.create_publisher(DiagnosticArray, '~/energy', reliable)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
+        self.points_pub = (self.create_publisher(PointCloud2, '~/points', reliable)
+                           if p['publish.points'] else None)
+        self.shape_pub = (self.create_publisher(Mesh, '~/shape', reliable)
+                          if p['publish.shape'] else None)
         self.clock_pub = None
         if p['publish_clock']:
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -874,6 +884,10 @@ class ClothNode(Node):
             pin_size=0.3 * self.mesh.mean_edge_length,
             handles=np.array([d['position'] for d in self.sim.handles.values()])))
         self.energy_pub.publish(self.energy_message(stamp))
+        if self.points_pub is not None:
+            self.points_pub.publish(point_cloud(x, self.sim.velocities, stamp, self.frame_id))
+        if self.shape_pub is not None:
+            self.shape_pub.publish(shape_mesh(x, self.mesh.faces))
         if self._wrench_pubs:
             self.publish_contact(stamp)
         if self._handles:

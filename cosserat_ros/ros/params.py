@@ -102,6 +102,10 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'handles.max_speed': (2.0, _desc('Fastest accepted handle target motion [m/s]: a target '
                                      'further from the last one is refused',
                                      fp=_fp(1e-3, 100.0))),
+    'publish.points': (False, _desc('Publish ~/points: sensor_msgs/PointCloud2, one point '
+                                    'per vertex, float32 x y z vx vy vz, every tick', True)),
+    'publish.shape': (False, _desc('Publish ~/shape: shape_msgs/Mesh of the cloth (for '
+                                   'MoveIt collision objects), every tick', True)),
     'observe_only': (False, _desc('Serve the cloth read-only: no command topics, no '
                                   'reset/pause/grasp services, and no run-time change of '
                                   'any parameter but ' + ', '.join(OBSERVER_RUNTIME), True)),
