@@ -86,22 +86,27 @@ def _test(p, a, b, c):
     return e0 * e0 + e1 * e1 + e2 * e2, u, v, w
 
 
+@kernel(inline='always')
+def _consider(p, x, faces, t, q, best, tri, bary):
+    """Triangle t for point q: if closer than ``best`` (a squared distance), it becomes
+    the answer (tri, bary); returns the new best."""
+    dd, u, v, w = _test(p, x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
+    if dd < best:
+        tri[q] = t
+        bary[q, 0] = u
+        bary[q, 1] = v
+        bary[q, 2] = w
+        return dd
+    return best
+
+
 @kernel(parallel=True)
 def _closest(x, faces, points, tri, bary):
     for q in nb.prange(points.shape[0]):
         p = points[q]
         best = np.inf
         for t in range(faces.shape[0]):
-            a = x[faces[t, 0]]
-            b = x[faces[t, 1]]
-            c = x[faces[t, 2]]
-            dd, u, v, w = _test(p, a, b, c)
-            if dd < best:
-                best = dd
-                tri[q] = t
-                bary[q, 0] = u
-                bary[q, 1] = v
-                bary[q, 2] = w
+            best = _consider(p, x, faces, t, q, best, tri, bary)
 
 
 def closest_points_brute(x: np.ndarray, faces: np.ndarray, points: np.ndarray):
@@ -218,15 +223,7 @@ def _closest_grid(x, faces, points, lo, h, dims, start, items, tri, bary):
                             continue
                         c = (i * n1 + j) * n2 + l
                         for e in range(start[c], start[c + 1]):
-                            t = items[e]
-                            dd, u, v, w = _test(p, x[faces[t, 0]], x[faces[t, 1]],
-                                                x[faces[t, 2]])
-                            if dd < best:
-                                best = dd
-                                tri[q] = t
-                                bary[q, 0] = u
-                                bary[q, 1] = v
-                                bary[q, 2] = w
+                            best = _consider(p, x, faces, items[e], q, best, tri, bary)
             if best <= out2 + (r * h) ** 2:
                 break
             r += 1
