@@ -12,11 +12,11 @@ BENCH_STAMP := $(VENV)/.bench-installed
 PKG_SOURCES := $(shell find cosserat_ros config resource launch rviz -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
-.PHONY: install run test validate bench lint clean
+.PHONY: install run view test validate bench lint clean
 
 install: $(PKG_STAMP)
 
-$(DEPS_STAMP): requirements.txt requirements-dev.txt
+$(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade 'pip<25'
 	$(PY) -m pip install --quiet -r requirements-dev.txt
@@ -37,6 +37,17 @@ $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 
 run: $(PKG_STAMP)
 	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS)
+
+# the demo with the live view on: open ws://localhost:$(VIEW_PORT) in the Foxglove app
+VIEW_PORT ?= 8765
+VIZ_STAMP := $(VENV)/.viz-installed
+$(VIZ_STAMP): $(DEPS_STAMP) requirements-viz.txt
+	$(PY) -m pip install --quiet -r requirements-viz.txt
+	touch $@
+
+view: $(PKG_STAMP) $(VIZ_STAMP)
+	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS) \
+	    -p foxglove.port:=$(VIEW_PORT)
 
 test: $(PKG_STAMP)
 	$(ENV) $(VENV)/bin/pytest -q --durations=20 test

@@ -12,14 +12,15 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json')),
         ('share/' + package_name + '/config/meshes', glob('config/meshes/*')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.*')),
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools'],
-    # the peer engine of the benchmark only (requirements-bench.txt pins it)
-    extras_require={'bench': ['mujoco']},
+    # the peer engine of the benchmark (requirements-bench.txt pins it) and the live view
+    # (foxglove.port; requirements-viz.txt)
+    extras_require={'bench': ['mujoco'], 'viz': ['foxglove-sdk']},
     zip_safe=False,
     maintainer='cosserat_ros developers',
     maintainer_email='cosserat-ros@example.com',

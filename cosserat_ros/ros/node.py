@@ -233,6 +233,9 @@ class ClothNode(Node):
         if not self.observe_only:
             self.create_service(Trigger, '~/reset', self.on_reset)
             self.create_service(SetBool, '~/pause', self.on_pause)
+        self.live = None
+        if p['foxglove.port']:
+            self.live = self._live_view(p['foxglove.port'], p['foxglove.host'])
         self.add_on_set_parameters_callback(self.validate_parameters)
         self.add_post_set_parameters_callback(self.apply_parameters)
         self.timer = self.create_timer(self.period, self.tick)
@@ -269,6 +272,29 @@ class ClothNode(Node):
                               f'{self.get_fully_qualified_name()} (a file for this node '
                               f'starts with "{self.get_name()}:" or "/**:", then '
                               '"ros__parameters:")')
+
+    def _live_view(self, port: int, host: str):
+        """The Foxglove server (:mod:`.live_view`), or ConfigError with the reason."""
+        from .live_view import LiveView
+        if not 0 < port < 65536:
+            raise ConfigError(f'foxglove.port must be in [1, 65535] (0: off), got {port}')
+        handlers = {} if self.observe_only else {
+            'reset': lambda args: self.reset(),
+            'pause': lambda args: self.pause(bool(args.get('data', True)))}
+        try:
+            live = LiveView(port, host, self.get_fully_qualified_name(), handlers)
+        except ImportError as exc:
+            raise ConfigError(str(exc)) from None
+        except Exception as exc:                     # e.g. the port is taken
+            raise ConfigError(f'foxglove.port {port}: {exc}') from None
+        self.get_logger().info(f'live view: open ws://{host}:{live.port} in the Foxglove app')
+        return live
+
+    def destroy_node(self):
+        if getattr(self, 'live', None) is not None:
+            self.live.close()
+            self.live = None
+        return super().destroy_node()
 
     def _sized(self, topic: str, msg_type, limit: int, handler):
         """A raw-subscription callback: a serialised message above ``limit`` bytes is
@@ -668,6 +694,15 @@ class ClothNode(Node):
 
     # ------------------------------------------------------------------ services
     def on_reset(self, request, response):
+        response.success, response.message = self.reset()
+        return response
+
+    def on_pause(self, request, response):
+        response.success, response.message = self.pause(bool(request.data))
+        return response
+
+    def reset(self) -> Tuple[bool, str]:
+        """Back to the rest shape at t = 0 (``~/reset``, and the live view's service)."""
         self.sim.reset()
         for h in self._handles.values():
             h['id'] = None
@@ -676,23 +711,18 @@ class ClothNode(Node):
         self._retime(True)
         self._window = [time.monotonic(), 0.0]
         self.pacer.restart()
-        response.success = True
-        response.message = 'cloth back to its rest shape at t = 0'
         self.publish_state()
-        return response
+        return True, 'cloth back to its rest shape at t = 0'
 
-    def on_pause(self, request, response):
-        if not request.data and self.diverged:
-            response.success = False
-            response.message = f'simulation diverged ({self.diverged}); call ~/reset first'
-            return response
-        self.paused = bool(request.data)
+    def pause(self, paused: bool) -> Tuple[bool, str]:
+        """Pause or resume (``~/pause``, and the live view's service)."""
+        if not paused and self.diverged:
+            return False, f'simulation diverged ({self.diverged}); call ~/reset first'
+        self.paused = paused
         self._dirty = True
         self._retime(not self.paused)
         self.pacer.restart()
-        response.success = True
-        response.message = 'paused' if self.paused else 'running'
-        return response
+        return True, 'paused' if self.paused else 'running'
 
     # ------------------------------------------------------------------ parameters
     def validate_parameters(self, params: List[Parameter]) -> SetParametersResult:
@@ -787,6 +817,8 @@ class ClothNode(Node):
         """Advance as many steps as keep sim time with wall time (:mod:`.pacing`), then
         publish."""
         now = time.monotonic()
+        if self.live is not None:
+            self.live.serve()
         self._expire_forces(now)
         if not self.paused and self.diverged is None:
             wanted = self.pacer.wanted(now, self.sim.dt)
@@ -878,11 +910,18 @@ class ClothNode(Node):
             c.clock.sec, c.clock.nanosec = divmod(stamp, 1_000_000_000)
             self.clock_pub.publish(c)
         pinned = np.flatnonzero(self.sim.pinned)
+        colors = self.vertex_colors()
+        handles = np.array([d['position'] for d in self.sim.handles.values()])
         self.mesh_pub.publish(mesh_marker_array(
-            x, self.mesh.faces, self.vertex_colors(), stamp, self.frame_id,
+            x, self.mesh.faces, colors, stamp, self.frame_id,
             edges=self.mesh.edges if self._wireframe else None, pinned=pinned,
             pin_size=0.3 * self.mesh.mean_edge_length,
-            handles=np.array([d['position'] for d in self.sim.handles.values()])))
+            handles=handles))
+        if self.live is not None:
+            self.live.publish(stamp, self.frame_id, x, self.mesh.faces, colors, self._energy,
+                              lambda: [(d['shape'], d, self.sim.obstacle_mesh(oid)
+                                        if d['shape'] == 'mesh' else None)
+                                       for oid, d in self.sim.obstacles.items()], handles)
         self.energy_pub.publish(self.energy_message(stamp))
         if self.points_pub is not None:
             self.points_pub.publish(point_cloud(x, self.sim.velocities, stamp, self.frame_id))

@@ -106,6 +106,11 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                     'per vertex, float32 x y z vx vy vz, every tick', True)),
     'publish.shape': (False, _desc('Publish ~/shape: shape_msgs/Mesh of the cloth (for '
                                    'MoveIt collision objects), every tick', True)),
+    'foxglove.port': (0, _desc('Port of the live view, a Foxglove WebSocket server in the '
+                               'node (needs foxglove-sdk: the viz extra); 0 = off', True,
+                               ip=[IntegerRange(from_value=0, to_value=65535, step=1)])),
+    'foxglove.host': ('127.0.0.1', _desc('Address the live view listens on (0.0.0.0: '
+                                         'every interface)', True)),
     'observe_only': (False, _desc('Serve the cloth read-only: no command topics, no '
                                   'reset/pause/grasp services, and no run-time change of '
                                   'any parameter but ' + ', '.join(OBSERVER_RUNTIME), True)),

@@ -1,0 +1,188 @@
+"""A live view in the browser: a Foxglove WebSocket server inside the node (``foxglove.port``).
+
+Needs the optional ``foxglove-sdk`` (``pip install .[viz]``). Open the Foxglove app (web
+or desktop), *Open connection*, ``ws://localhost:PORT``, and the shipped layout
+``config/foxglove_layout.json``. The server (subprotocol ``foxglove.sdk.v1``) offers:
+
+=========================  ==============================  =================================
+channel / service          schema                          content
+=========================  ==============================  =================================
+``/cloth_node/scene``      foxglove.SceneUpdate (protobuf)  entity ``cloth``: one triangle
+                                                            list, shared vertices sent once
+                                                            (``indices``), a colour per
+                                                            vertex (the ``coloring``);
+                                                            entity ``obstacles`` (cubes,
+                                                            spheres, cylinders, triangles)
+                                                            and ``handles`` (spheres)
+``/cloth_node/energy``     JSON                            the energy terms [J], sim time
+``/cloth_node/reset``      service, JSON                   as ``~/reset``
+``/cloth_node/pause``      service, JSON ``{"data": b}``   as ``~/pause``
+=========================  ==============================  =================================
+
+Log times are simulation time, which the server also broadcasts (the *Time* capability),
+so the app's clock is the cloth's. A channel is built only while a client subscribes to it.
+
+Threads: the SDK calls the service handlers on its own thread; they queue the request and
+wait (at most :data:`SERVICE_TIMEOUT` s) for the node's tick to run it (:meth:`serve`), so
+the simulator is only ever touched from the node's thread.
+"""
+from __future__ import annotations
+
+import json
+import queue
+import threading
+from typing import Callable, Dict, Optional
+
+import numpy as np
+
+__all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS']
+
+#: [s] how long a service call waits for the node's next tick
+SERVICE_TIMEOUT = 2.0
+#: the energy terms sent on /cloth_node/energy
+ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'external_work',
+               'dissipated', 'total')
+
+
+class LiveView:
+    """The Foxglove server of one node (module docstring). ``handlers`` maps ``'reset'``
+    and ``'pause'`` to functions of the request (a dict) returning (success, message)."""
+
+    def __init__(self, port: int, host: str, prefix: str,
+                 handlers: Dict[str, Callable[[dict], tuple]]):
+        try:
+            import foxglove
+            from foxglove.channels import SceneUpdateChannel
+        except ImportError:
+            raise ImportError('foxglove.port needs the foxglove-sdk package: pip install '
+                              "'cosserat_ros[viz]' (or pip install foxglove-sdk)") from None
+        self._fg = foxglove
+        self._handlers = handlers
+        self._requests: 'queue.Queue' = queue.Queue()
+        self.context = foxglove.Context()
+        schema = foxglove.ServiceSchema(
+            'std_srvs/Trigger',
+            request=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
+                name='request', encoding='jsonschema', data=b'{"type": "object"}')),
+            response=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
+                name='response', encoding='jsonschema',
+                data=json.dumps({'type': 'object', 'properties': {
+                    'success': {'type': 'boolean'}, 'message': {'type': 'string'}}}).encode())))
+        services = [foxglove.Service(f'{prefix}/{name}', schema=schema,
+                                     handler=lambda req, n=name: self._call(n, req))
+                    for name in handlers]
+        self.server = foxglove.start_server(
+            name=prefix.strip('/'), host=host, port=port, context=self.context,
+            capabilities=[foxglove.Capability.Time, foxglove.Capability.Services],
+            supported_encodings=['json'], services=services)
+        self.scene = SceneUpdateChannel(f'{prefix}/scene', context=self.context)
+        self.energy = foxglove.Channel(
+            f'{prefix}/energy', message_encoding='json', context=self.context,
+            schema={'type': 'object', 'properties': {
+                k: {'type': 'number'} for k in ENERGY_KEYS + ('sim_time',)}})
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    # ------------------------------------------------------------------ services
+    def _call(self, name: str, request) -> bytes:
+        """On the SDK's thread: queue the call for the node's thread and wait for it."""
+        try:
+            args = json.loads(bytes(request.payload) or b'{}')
+        except ValueError:
+            raise ValueError('the request is not JSON') from None
+        done = threading.Event()
+        box: list = []
+        self._requests.put((name, args if isinstance(args, dict) else {}, done, box))
+        if not done.wait(SERVICE_TIMEOUT):
+            raise TimeoutError(f'the node did not answer within {SERVICE_TIMEOUT} s')
+        success, message = box[0]
+        return json.dumps({'success': bool(success), 'message': str(message)}).encode()
+
+    def serve(self, limit: int = 8) -> None:
+        """On the node's thread (each tick): run at most ``limit`` queued service calls."""
+        for _ in range(limit):
+            try:
+                name, args, done, box = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                box.append(self._handlers[name](args))
+            except Exception as exc:                 # reported to the caller, not raised
+                box.append((False, f'{type(exc).__name__}: {exc}'))
+            done.set()
+
+    # ------------------------------------------------------------------ publishing
+    def publish(self, stamp_ns: int, frame_id: str, positions: np.ndarray,
+                faces: np.ndarray, colors: np.ndarray, energy: dict,
+                obstacles: Optional[Callable[[], list]] = None,
+                handles: Optional[np.ndarray] = None):
+        """One frame at sim time ``stamp_ns``: the time, and each channel a client
+        watches. ``obstacles``: a function giving (shape, description, mesh or None) per
+        obstacle, called only when a client watches the scene."""
+        self.server.broadcast_time(int(stamp_ns))
+        if self.energy.has_sinks():
+            msg = {k: float(energy[k]) for k in ENERGY_KEYS if k in energy}
+            msg['sim_time'] = stamp_ns * 1e-9
+            self.energy.log(msg, log_time=int(stamp_ns))
+        if not self.scene.has_sinks():
+            return
+        m = self._fg.messages
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        ts = m.Timestamp(sec, nsec)
+        cloth = m.TriangleListPrimitive(
+            points=[m.Point3(x=a, y=b, z=c) for a, b, c in positions.tolist()],
+            colors=[m.Color(r=r, g=g, b=b, a=a) for r, g, b, a in colors.tolist()],
+            indices=faces.reshape(-1).tolist(), color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0))
+        entities = [m.SceneEntity(timestamp=ts, frame_id=frame_id, id='cloth',
+                                  triangles=[cloth])]
+        listed = obstacles() if obstacles is not None else []
+        if listed:
+            entities.append(self._obstacles(m, ts, frame_id, listed))
+        if handles is not None and len(handles):
+            green = m.Color(r=0.1, g=0.8, b=0.3, a=1.0)
+            entities.append(m.SceneEntity(timestamp=ts, frame_id=frame_id, id='handles',
+                                          spheres=[m.SpherePrimitive(
+                                              pose=m.Pose(position=m.Vector3(x=a, y=b, z=c)),
+                                              size=m.Vector3(x=0.03, y=0.03, z=0.03),
+                                              color=green)
+                                              for a, b, c in np.asarray(handles).tolist()]))
+        self.scene.log(m.SceneUpdate(entities=entities), log_time=int(stamp_ns))
+
+    @staticmethod
+    def _obstacles(m, ts, frame_id, obstacles):
+        grey = m.Color(r=0.6, g=0.6, b=0.6, a=0.8)
+        cubes, spheres, cylinders, triangles = [], [], [], []
+        for shape, d, mesh in obstacles:
+            (px, py, pz), (qx, qy, qz, qw) = d['position'], d['orientation']
+            pose = m.Pose(position=m.Vector3(x=px, y=py, z=pz),
+                          orientation=m.Quaternion(x=qx, y=qy, z=qz, w=qw))
+            if shape == 'sphere':
+                s = 2 * d['radius']
+                spheres.append(m.SpherePrimitive(pose=pose, size=m.Vector3(x=s, y=s, z=s),
+                                                 color=grey))
+            elif shape == 'box':
+                hx, hy, hz = d['half_extents']
+                cubes.append(m.CubePrimitive(pose=pose, color=grey,
+                                             size=m.Vector3(x=2 * hx, y=2 * hy, z=2 * hz)))
+            elif shape == 'plane':
+                cubes.append(m.CubePrimitive(pose=pose, color=grey,
+                                             size=m.Vector3(x=10.0, y=10.0, z=1e-3)))
+            elif shape in ('cylinder', 'capsule'):
+                r, h = d['radius'], 2 * d['half_length'] + (
+                    2 * d['radius'] if shape == 'capsule' else 0.0)
+                cylinders.append(m.CylinderPrimitive(
+                    pose=pose, size=m.Vector3(x=2 * r, y=2 * r, z=h), bottom_scale=1.0,
+                    top_scale=1.0, color=grey))
+            elif mesh is not None:
+                verts, faces = mesh
+                triangles.append(m.TriangleListPrimitive(
+                    pose=pose, color=grey,
+                    points=[m.Point3(x=a, y=b, z=c) for a, b, c in verts.tolist()],
+                    indices=np.asarray(faces).reshape(-1).tolist()))
+        return m.SceneEntity(timestamp=ts, frame_id=frame_id, id='obstacles', cubes=cubes,
+                             spheres=spheres, cylinders=cylinders, triangles=triangles)
+
+    def close(self) -> None:
+        self.server.stop()
