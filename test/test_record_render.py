@@ -111,6 +111,115 @@ def test_bag_crcs_check_out_with_the_mcap_reader(bag):
         list(make_reader(io.BytesIO(bytes(bad)), validate_crcs=True).iter_messages())
 
 
+def test_every_message_decodes_with_mcap_ros2_support(bag):
+    # mcap-ros2-support decodes CDR from the schema text in the file alone (no ROS types):
+    # the ros2msg definitions the recorder writes are complete
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    with AnyReader([bag]) as reader:
+        expected = reader.message_count
+    count, kinds = 0, {}
+    with open(bag / 'cloth.mcap', 'rb') as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for _, channel, message, ros_msg in reader.iter_decoded_messages():
+            count += 1
+            kinds.setdefault(channel.topic, type(ros_msg).__name__)
+            if channel.topic == '/cloth_node/mesh':
+                assert len(ros_msg.markers[0].points) == 3 * 2 * NX * NX
+            elif channel.topic == '/clock':
+                # logged on the recorder's sim clock: within two publish periods of its
+                # own content (the latched first one is up to a period old on arrival)
+                t = ros_msg.clock.sec * 10 ** 9 + ros_msg.clock.nanosec
+                assert abs(message.log_time - t) <= 2e9 / RATE, (message.log_time, t)
+    assert count == expected > 0
+    assert set(kinds) == {'/cloth_node/mesh', '/cloth_node/energy', '/diagnostics', '/clock'}
+
+
+def test_metadata_follows_rosbag2_version_9(bag, node):
+    # field by field, as rosbag2 Jazzy writes and reads it; type hashes equal to what
+    # rclpy reports for the node's publishers
+    import rclpy
+    import yaml
+    from rclpy.context import Context
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['version'] == 9 and meta['storage_identifier'] == 'mcap'
+    assert meta['relative_file_paths'] == ['cloth.mcap']
+    assert meta['compression_format'] == '' and meta['compression_mode'] == ''
+    (f,) = meta['files']
+    assert f['path'] == 'cloth.mcap' and f['message_count'] == meta['message_count']
+    assert f['starting_time'] == meta['starting_time'] and f['duration'] == meta['duration']
+    topics = {t['topic_metadata']['name']: t for t in meta['topics_with_message_count']}
+    assert sum(t['message_count'] for t in topics.values()) == meta['message_count']
+    from mcap.reader import make_reader
+    with open(bag / 'cloth.mcap', 'rb') as fh:
+        summary = make_reader(fh).get_summary()
+    stats = summary.statistics
+    counts = {summary.channels[cid].topic: n
+              for cid, n in stats.channel_message_counts.items()}
+    assert {k: v['message_count'] for k, v in topics.items()} == counts
+    assert meta['starting_time']['nanoseconds_since_epoch'] == stats.message_start_time
+    assert meta['duration']['nanoseconds'] == (stats.message_end_time
+                                               - stats.message_start_time)
+    qos_keys = {'history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
+                'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions'}
+    ctx = Context()
+    rclpy.init(context=ctx)
+    peer = rclpy.create_node('meta_check', context=ctx)
+    try:
+        for name, t in topics.items():
+            md = t['topic_metadata']
+            assert md['serialization_format'] == 'cdr'
+            (qos,) = md['offered_qos_profiles']
+            assert set(qos) == qos_keys and qos['reliability'] == 'reliable'
+            assert qos['durability'] == ('transient_local' if name == '/clock' else 'volatile')
+            end = time.monotonic() + 10
+            infos = []
+            while not infos and time.monotonic() < end:
+                infos = [i for i in peer.get_publishers_info_by_topic(name)
+                         if i.node_name == 'cloth_node']
+                time.sleep(0.1)
+            assert infos, name
+            assert md['type'] == infos[0].topic_type
+            assert md['type_description_hash'] == str(infos[0].topic_type_hash), name
+    finally:
+        peer.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def test_a_message_larger_than_a_chunk(tmp_path):
+    # a 160 x 160 cloth's mesh message (~6 MB) is one message in a chunk of its own
+    import io
+    from mcap.reader import make_reader
+    from rclpy.serialization import deserialize_message
+    from visualization_msgs.msg import MarkerArray
+    from cosserat_ros.mesh import grid_mesh
+    from cosserat_ros.ros.conversions import colormap, mesh_marker_array
+    from cosserat_ros.tools.bagfile import BagWriter, CHUNK_BYTES
+    m = grid_mesh(160, 160)
+    colors = colormap(m.vertices[:, 0], 0.0, 1.0)
+    out = tmp_path / 'big'
+    w = BagWriter(out)
+    w.add('/cloth_node/mesh', 'visualization_msgs/msg/MarkerArray')
+    sizes = []
+    for k in range(3):
+        data = mesh_marker_array(m.vertices + k, m.faces, colors, k * 10 ** 8, 'world')
+        sizes.append(len(data))
+        w.write('/cloth_node/mesh', k * 10 ** 8, data)
+    w.close()
+    assert min(sizes) > CHUNK_BYTES
+    raw = (out / 'big.mcap').read_bytes()
+    reader = make_reader(io.BytesIO(raw), validate_crcs=True)
+    got = [(msg.log_time, msg.data) for _, _, msg in reader.iter_messages()]
+    assert [t for t, _ in got] == [0, 10 ** 8, 2 * 10 ** 8]
+    assert len(reader.get_summary().chunk_indexes) == 3
+    for k, (_, data) in enumerate(got):
+        tri = deserialize_message(data, MarkerArray).markers[0]
+        assert len(tri.points) == 3 * m.n_faces and tri.points[0].x == pytest.approx(
+            m.vertices[m.faces[0, 0], 0] + k)
+    with AnyReader([out]) as reader:
+        assert reader.message_count == 3
+
+
 def test_a_write_failure_stops_the_recorder_with_a_readable_bag(node, tmp_path):
     # a file-size limit stands in for a full disk: the recorder stops with one line and
     # exit 1, and what it wrote before is a complete bag (metadata.yaml included)
@@ -192,6 +301,10 @@ def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     with AnyReader([crashed]) as reader:
         msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
     assert len(msgs) >= 3
+    from mcap.reader import make_reader
+    with open(crashed / 'crashed.mcap', 'rb') as fh:                # the rebuilt file
+        assert sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages()) == \
+            len(msgs)
 
 
 def test_render_a_recorded_bag(bag, tmp_path):
