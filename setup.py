@@ -32,6 +32,7 @@ setup(
             'cloth_node = cosserat_ros.entry:cloth_node',
             'record = cosserat_ros.entry:record',
             'render = cosserat_ros.entry:render',
+            'fold_demo = cosserat_ros.entry:fold_demo',
         ],
     },
 )

@@ -7,7 +7,7 @@ import importlib
 import signal
 import sys
 
-__all__ = ['cloth_node', 'record', 'render']
+__all__ = ['cloth_node', 'record', 'render', 'fold_demo']
 
 
 def _interrupt(signum, frame):
@@ -52,3 +52,7 @@ def record() -> int:
 
 def render() -> int:
     return _run('render', 'cosserat_ros.tools.render')
+
+
+def fold_demo() -> int:
+    return _run('fold_demo', 'cosserat_ros.tools.fold_demo')

@@ -377,3 +377,21 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(tmp_path):
     out, err = proc.communicate(timeout=30)
     assert 'Traceback' not in err + out, err
     assert proc.returncode in (0, 130), err
+
+
+def test_fold_demo_folds_the_cloth_through_the_ros_interfaces():
+    # the shipped demo end to end: config/fold.yaml in one process, fold_demo (grasp,
+    # a pose stream, release, and its own check of the fold from ~/points) in another
+    share = get_package_share_directory('cosserat_ros')
+    proc = start(os.path.join(share, 'config', 'fold.yaml'))
+    try:
+        demo = subprocess.run(ros2_run('cosserat_ros', 'fold_demo'), capture_output=True,
+                              text=True, timeout=180)
+        assert demo.returncode == 0, demo.stdout + demo.stderr
+        assert '100% of the grasped edge' in demo.stdout and 'folded' in demo.stdout
+        assert demo.stdout.count('holds') == 2
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out

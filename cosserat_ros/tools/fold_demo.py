@@ -1,0 +1,141 @@
+"""``fold_demo``: fold the cloth of ``config/fold.yaml`` in half with its two handles, as a
+robot would, through the node's ROS interfaces only.
+
+    fold_demo [--node cloth_node] [--duration 4.0] [--settle 2.0]
+
+Places handles ``left`` and ``right`` on the cloth's corners at x = min (``~/handles/<n>/
+target``), grasps (``~/handles/<n>/grasp``), streams targets at 30 Hz along an arc that
+lifts the corners 0.25 m while carrying them to the far edge, turning the grip about y by
+180 degrees, releases them just above the far corners and lets the cloth settle. Then it
+reads ``~/points`` and checks the fold: the vertices that started within 0.1 width of the
+grasped edge must end on the far half, and the cloth must lie on the ground (every vertex
+below 5 cm). Prints what it measured; exit 0 if folded, 1 if not, 2 if the node is not
+there. Needs ``publish.points: true`` (fold.yaml has it).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+__all__ = ['main', 'fold_path']
+
+RATE = 30.0
+LIFT = 0.25           # [m] highest point of the arc
+
+
+def fold_path(s: float, start: np.ndarray, end_x: float):
+    """Handle pose at progress s in [0, 1]: (position (3,), quaternion (x, y, z, w)). The
+    corner rises on a half sine while x goes from start to end_x (cosine-eased), the grip
+    turns about +y by pi s (the inward direction of the cloth at the edge, +x, turns
+    through -z to -x)."""
+    e = 0.5 * (1.0 - math.cos(math.pi * s))
+    p = np.array([start[0] + (end_x - start[0]) * e, start[1],
+                  start[2] + LIFT * math.sin(math.pi * s) + 0.01 * e])
+    q = np.array([0.0, math.sin(math.pi * s / 2), 0.0, math.cos(math.pi * s / 2)])
+    return p, q
+
+
+def main(argv=None) -> int:
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import PointCloud2
+    from std_srvs.srv import SetBool
+    ap = argparse.ArgumentParser(prog='fold_demo', description=__doc__.split('\n')[0])
+    ap.add_argument('--node', default='cloth_node')
+    ap.add_argument('--duration', type=float, default=4.0, help='seconds of the carry')
+    ap.add_argument('--settle', type=float, default=2.0, help='seconds after release')
+    ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
+    a = ap.parse_args(rclpy.utilities.remove_ros_args(['fold_demo'] + list(
+        sys.argv[1:] if argv is None else argv))[1:])
+    rclpy.init(args=argv)
+    node = rclpy.create_node('fold_demo')
+    base = f'/{a.node}'
+    clouds = []
+    node.create_subscription(PointCloud2, f'{base}/points', clouds.append, 5)
+    targets = {n: node.create_publisher(PoseStamped, f'{base}/handles/{n}/target', 10)
+               for n in ('left', 'right')}
+    grasp = {n: node.create_client(SetBool, f'{base}/handles/{n}/grasp')
+             for n in ('left', 'right')}
+
+    def spin(seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=min(0.01, max(end - time.monotonic(), 0)))
+
+    def points():
+        c = clouds[-1]
+        return np.frombuffer(bytes(c.data), dtype='<f4').reshape(-1, 6)[:, :3].astype(float)
+
+    def send(name, p, q):
+        msg = PoseStamped()
+        msg.header.frame_id = 'world'
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, p)
+        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+         msg.pose.orientation.w) = map(float, q)
+        targets[name].publish(msg)
+
+    def call(name, data):
+        fut = grasp[name].call_async(SetBool.Request(data=data))
+        end = time.monotonic() + 10
+        while not fut.done() and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        return fut.result()
+
+    try:
+        end = time.monotonic() + a.wait
+        while time.monotonic() < end and not (clouds and all(
+                c.wait_for_service(timeout_sec=0.01) for c in grasp.values())):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if not clouds:
+            print(f'fold_demo: error: no {base}/points (publish.points) or handle services '
+                  f'after {a.wait:g} s: start the node with config/fold.yaml', file=sys.stderr)
+            return 2
+        spin(1.0)                                        # let the cloth settle on the ground
+        x0 = points()
+        lo, hi = x0.min(axis=0), x0.max(axis=0)
+        corners = {'left': np.array([lo[0], lo[1], x0[:, 2].mean()]),
+                   'right': np.array([lo[0], hi[1], x0[:, 2].mean()])}
+        end_x = hi[0] - 0.03 * (hi[0] - lo[0])
+        for name, p in corners.items():
+            send(name, p, (0.0, 0.0, 0.0, 1.0))
+        spin(0.3)
+        for name in corners:
+            res = call(name, True)
+            if res is None or not res.success:
+                print(f'fold_demo: error: grasp {name}: '
+                      f'{res.message if res else "no answer"}', file=sys.stderr)
+                return 1
+            print(f'fold_demo: {res.message}')
+        steps = int(a.duration * RATE)
+        t0 = time.monotonic()
+        for k in range(1, steps + 1):
+            for name, p in corners.items():
+                send(name, *fold_path(k / steps, p, end_x))
+            spin(max(0.0, t0 + k / RATE - time.monotonic()))
+        spin(0.3)
+        for name in corners:
+            call(name, False)
+        spin(a.settle)
+        x1 = points()
+        edge = x0[:, 0] < lo[0] + 0.1 * (hi[0] - lo[0])
+        mid = 0.5 * (lo[0] + hi[0])
+        over = float(np.mean(x1[edge, 0] > mid))
+        top = float(x1[:, 2].max())
+        folded = over == 1.0 and top < 0.05
+        print(f'fold_demo: {over:.0%} of the grasped edge\'s vertices ended on the far half '
+              f'(x > {mid:.3f} m), highest vertex at z = {top:.3f} m: '
+              f'{"folded" if folded else "NOT folded"}')
+        return 0 if folded else 1
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
