@@ -341,3 +341,51 @@ def test_render_live_topics(node, bag, tmp_path):
                           '-o', str(tmp_path / 'none')], capture_output=True, text=True,
                          timeout=60)
     assert res.returncode == 1 and 'no mesh from /nobody/mesh' in res.stderr
+
+
+def test_obstacles_are_drawn_where_the_markers_put_them(tmp_path):
+    from geometry_msgs.msg import Point
+    from rclpy.serialization import serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+    from cosserat_ros.mesh import grid_mesh
+    from cosserat_ros.ros.conversions import colormap, mesh_marker_array
+    from cosserat_ros.tools.render import obstacle_polygons, render
+
+    def marker(kind, pos, scale, q=(0.0, 0.0, 0.0, 1.0)):
+        m = Marker(type=kind, action=Marker.ADD)
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = pos
+        (m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+         m.pose.orientation.w) = q
+        m.scale.x, m.scale.y, m.scale.z = scale
+        return m
+    s = np.sqrt(0.5)
+    tri = marker(Marker.TRIANGLE_LIST, (0.0, 0.0, 1.0), (1.0, 1.0, 1.0))
+    tri.points = [Point(x=0.0, y=0.0, z=0.0), Point(x=0.1, y=0.0, z=0.0),
+                  Point(x=0.0, y=0.1, z=0.0)]
+    arr = MarkerArray(markers=[
+        Marker(action=Marker.DELETEALL),
+        marker(Marker.CUBE, (1.0, 2.0, 3.0), (0.2, 0.4, 0.6), (0.0, 0.0, s, s)),  # 90 deg
+        marker(Marker.SPHERE, (0.0, 0.0, 0.5), (0.5, 0.5, 0.5)),
+        marker(Marker.CUBE, (0.0, 0.0, -0.01), (10.0, 10.0, 0.001)),      # the plane
+        marker(Marker.CYLINDER, (0.0, 1.0, 0.0), (0.2, 0.2, 1.0)), tri,
+        marker(Marker.SPHERE, (50.0, 0.0, 0.0), (1.0, 1.0, 1.0))])       # out of view
+    raw = serialize_message(arr)
+    box, ball, plane, cyl, mesh = obstacle_polygons(raw, np.array([0.5, 1.0, 1.5]), 2.0)
+    pts = box.reshape(-1, 3)
+    np.testing.assert_allclose(pts.min(axis=0), [0.8, 1.9, 2.7], atol=1e-12)   # turned
+    np.testing.assert_allclose(pts.max(axis=0), [1.2, 2.1, 3.3], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(ball.reshape(-1, 3) - [0, 0, 0.5], axis=1),
+                               0.25)
+    p = plane.reshape(-1, 3)                               # cut to the view round (0.5, 1)
+    np.testing.assert_allclose([p[:, 0].min(), p[:, 0].max(), p[:, 1].min(), p[:, 1].max()],
+                               [-1.5, 2.5, -1.0, 3.0], atol=1e-12)
+    c = cyl.reshape(-1, 3)
+    np.testing.assert_allclose(np.hypot(c[:, 0], c[:, 1] - 1.0), 0.1)
+    assert c[:, 2].min() == pytest.approx(-0.5) and c[:, 2].max() == pytest.approx(0.5)
+    np.testing.assert_allclose(mesh[0], [[0, 0, 1], [0.1, 0, 1], [0, 0.1, 1]])
+    # the pictures draw them beside the cloth
+    m = grid_mesh(4, 4)
+    meshes = [mesh_marker_array(m.vertices, m.faces, colormap(m.vertices[:, 0], 0, 1),
+                                k * 10 ** 8, 'world') for k in range(3)]
+    written = render(meshes, [], tmp_path, frames=3, obstacles=[(0.0, raw)])
+    assert {p.name for p in written} >= {'cloth.gif', 'cloth_0.000s.png'}

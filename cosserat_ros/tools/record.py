@@ -2,7 +2,8 @@
 
     record -o DIR [--duration S] [--node cloth_node] [--wall-time] [TOPIC ...]
 
-Default topics: the node's ``~/mesh`` and ``~/energy``, ``/diagnostics`` and ``/clock``.
+Default topics: the node's ``~/mesh``, ``~/energy`` and ``~/obstacle_markers`` (which
+``render`` draws), ``/diagnostics`` and ``/clock``.
 Messages are subscribed with their real types and written as the serialised bytes that
 arrive (no deserialise / re-serialise round trip) by :mod:`.bagfile` (``metadata.yaml``
 plus ``DIR/DIR.mcap``, CRCs written), so ``ros2 bag info``, ``ros2 bag play``, Foxglove and
@@ -38,7 +39,7 @@ from typing import Dict, List
 
 __all__ = ['main', 'recover', 'DEFAULT_TOPICS']
 
-DEFAULT_TOPICS = ('~/mesh', '~/energy', '/diagnostics', '/clock')
+DEFAULT_TOPICS = ('~/mesh', '~/energy', '~/obstacle_markers', '/diagnostics', '/clock')
 
 
 def message_class(type_name: str):

@@ -6,6 +6,8 @@
 Writes into OUT: ``cloth_<t>s.png`` (shaded, coloured like the marker, one per chosen
 simulation time; default first, middle and last), ``cloth.gif`` (and ``cloth.mp4`` when
 ffmpeg is on the PATH), and ``energy.png`` (every energy term against simulation time).
+The obstacles of ``~/obstacle_markers`` (spheres, boxes, cylinders, meshes; a plane as a
+square patch under the view) are drawn in grey with each frame, as they were at its time.
 Uses matplotlib's Agg backend: no display needed.
 """
 from __future__ import annotations
@@ -24,7 +26,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ['main', 'read_bag', 'render_frame', 'energy_plot']
+__all__ = ['main', 'read_bag', 'render', 'render_frame', 'energy_plot', 'obstacle_polygons']
 
 ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'total',
                'external_work', 'dissipated')
@@ -57,17 +59,106 @@ def _decode_energy(raw: bytes) -> Tuple[float, dict]:
     return vals.get('sim_time', msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec), vals
 
 
-def read_bag(path: Path, mesh_topic: str, energy_topic: str):
-    """Raw mesh and energy messages of a rosbag2 directory, in recording order."""
+def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str = ''):
+    """Raw mesh and energy messages of a rosbag2 directory, in recording order, and the
+    obstacle marker arrays as (sim time [s], raw)."""
     from rosbags.highlevel import AnyReader
-    meshes, energies = [], []
+    meshes, energies, obstacles = [], [], []
     with AnyReader([Path(path)]) as reader:
-        conns = [c for c in reader.connections if c.topic in (mesh_topic, energy_topic)]
+        conns = [c for c in reader.connections
+                 if c.topic in (mesh_topic, energy_topic, obstacle_topic)]
         if not any(c.topic == mesh_topic for c in conns):
             raise SystemExit(f'render: {path} has no {mesh_topic} messages')
-        for conn, _, raw in reader.messages(connections=conns):
-            (meshes if conn.topic == mesh_topic else energies).append(bytes(raw))
-    return meshes, energies
+        for conn, t, raw in reader.messages(connections=conns):
+            if conn.topic == obstacle_topic:
+                obstacles.append((t * 1e-9, bytes(raw)))
+            else:
+                (meshes if conn.topic == mesh_topic else energies).append(bytes(raw))
+    return meshes, energies, obstacles
+
+
+def _quat_matrix(q) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _unit_sphere(k: int = 12) -> np.ndarray:
+    """Quads (m, 4, 3) of a unit sphere, k bands of latitude."""
+    th = np.linspace(0, np.pi, k + 1)
+    ph = np.linspace(0, 2 * np.pi, 2 * k + 1)
+    p = np.stack([np.outer(np.sin(th), np.cos(ph)), np.outer(np.sin(th), np.sin(ph)),
+                  np.outer(np.cos(th), np.ones_like(ph))], axis=-1)
+    return np.stack([p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]], axis=2).reshape(-1, 4, 3)
+
+
+def _unit_box() -> np.ndarray:
+    """Quads (6, 4, 3) of the cube [-1, 1]^3."""
+    quads = []
+    for axis in range(3):
+        for side in (-1.0, 1.0):
+            u, v = [a for a in range(3) if a != axis]
+            q = np.zeros((4, 3))
+            q[:, axis] = side
+            q[:, u] = (-1, 1, 1, -1)
+            q[:, v] = (-1, -1, 1, 1)
+            quads.append(q)
+    return np.array(quads)
+
+
+def _unit_cylinder(k: int = 24) -> np.ndarray:
+    """Quads (k, 4, 3) of the side of a cylinder of radius 1 from z = -1 to 1."""
+    a = np.linspace(0, 2 * np.pi, k + 1)
+    c, s = np.cos(a), np.sin(a)
+    return np.stack([np.stack([c[:-1], s[:-1], -np.ones(k)], -1),
+                     np.stack([c[1:], s[1:], -np.ones(k)], -1),
+                     np.stack([c[1:], s[1:], np.ones(k)], -1),
+                     np.stack([c[:-1], s[:-1], np.ones(k)], -1)], axis=1)
+
+
+def obstacle_polygons(raw: bytes, centre: np.ndarray, radius: float) -> List[np.ndarray]:
+    """The obstacles of a serialised ``~/obstacle_markers`` MarkerArray as lists of
+    polygons (k, n, 3) in the world frame. A marker wider than the view (the node draws a
+    plane as a 10 m thin CUBE) is cut to the view's size around the point of it nearest
+    the view's centre. Polygons wholly outside the view cube are left out."""
+    from rclpy.serialization import deserialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+    out = []
+    for m in deserialize_message(raw, MarkerArray).markers:
+        if m.action != Marker.ADD:
+            continue
+        p = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        R = _quat_matrix((m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+                          m.pose.orientation.w))
+        half = 0.5 * np.array([m.scale.x, m.scale.y, m.scale.z])
+        local_centre = R.T @ (centre - p)
+        shift = np.zeros(3)
+        for k in range(3):                                # too wide: a patch of the view
+            if half[k] > 2 * radius:
+                half[k] = radius
+                shift[k] = local_centre[k]
+        if m.type == Marker.SPHERE:
+            unit = _unit_sphere()
+        elif m.type == Marker.CUBE:
+            unit = _unit_box()
+        elif m.type == Marker.CYLINDER:
+            unit = _unit_cylinder()
+        elif m.type == Marker.TRIANGLE_LIST and m.points:
+            pts = np.array([(q.x, q.y, q.z) for q in m.points]).reshape(-1, 3, 3)
+            out.append(pts * np.array([m.scale.x, m.scale.y, m.scale.z]) @ R.T + p)
+            continue
+        else:
+            continue
+        out.append((unit * half + shift) @ R.T + p)
+    # polygons wholly outside the view cube would be drawn outside the axes: left out
+    lo, hi = centre - radius, centre + radius
+    kept = []
+    for polys in out:
+        outside = np.any(np.all(polys < lo, axis=1) | np.all(polys > hi, axis=1), axis=1)
+        if not outside.all():
+            kept.append(polys[~outside])
+    return kept
 
 
 def _limits(frames):
@@ -77,9 +168,14 @@ def _limits(frames):
     return c, r
 
 
-def render_frame(ax, t, tris, cols, centre, radius):
-    """Draw one cloth state: corner colours averaged per face, Lambert-shaded."""
+def render_frame(ax, t, tris, cols, centre, radius, obstacles=()):
+    """Draw one cloth state: corner colours averaged per face, Lambert-shaded; the
+    obstacles (:func:`obstacle_polygons`) in translucent grey."""
     ax.clear()
+    for polys in obstacles:
+        ax.add_collection3d(Poly3DCollection(polys, facecolors=(0.55, 0.55, 0.58, 0.35),
+                                             edgecolors=(0.4, 0.4, 0.45, 0.25),
+                                             linewidths=0.3))
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-300)
     light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
@@ -117,7 +213,9 @@ def energy_plot(energies, path: Path):
 
 
 def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
-           frames: int = 60) -> List[Path]:
+           frames: int = 60, obstacles=()) -> List[Path]:
+    """Pictures, animation and energy plot of the mesh messages (module docstring);
+    ``obstacles``: (sim time [s], raw ~/obstacle_markers) in time order."""
     out.mkdir(parents=True, exist_ok=True)
     if not meshes:
         raise SystemExit('render: no mesh messages to draw')
@@ -133,10 +231,22 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
         if i not in decoded:
             decoded[i] = _decode_mesh(meshes[i])
     centre, radius = _limits([decoded[i] for i in decoded])
+    stamps = [t for t, _ in obstacles]
+    shapes: dict = {}
+
+    def at(t):                    # the obstacles of the last marker array up to time t
+        k = int(np.searchsorted(stamps, t + 1e-9, side='right')) - 1
+        if k < 0 and stamps:
+            k = 0                 # before the first (1 Hz) array: the first one
+        if k < 0:
+            return []
+        if k not in shapes:
+            shapes[k] = obstacle_polygons(obstacles[k][1], centre, radius)
+        return shapes[k]
     for i in chosen:
         fig = plt.figure(figsize=(6, 6))
         ax = fig.add_subplot(projection='3d')
-        render_frame(ax, *decoded[i], centre, radius)
+        render_frame(ax, *decoded[i], centre, radius, at(decoded[i][0]))
         p = out / f'cloth_{decoded[i][0]:.3f}s.png'
         fig.savefig(p, dpi=100)
         plt.close(fig)
@@ -145,8 +255,8 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     fig = plt.figure(figsize=(5, 5))
     ax = fig.add_subplot(projection='3d')
     seq = [decoded[i] for i in pick]
-    anim = FuncAnimation(fig, lambda k: render_frame(ax, *seq[k], centre, radius),
-                         frames=len(seq))
+    anim = FuncAnimation(fig, lambda k: render_frame(ax, *seq[k], centre, radius,
+                                                     at(seq[k][0])), frames=len(seq))
     gif = out / 'cloth.gif'
     anim.save(gif, writer=PillowWriter(fps=12), dpi=70)
     written.append(gif)
@@ -210,10 +320,13 @@ def main(argv=None) -> int:
         if not os.path.isdir(a.bag):
             print(f'render: error: {a.bag} is not a bag directory', file=sys.stderr)
             return 2
-        meshes, energies = read_bag(Path(a.bag), f'/{a.node}/mesh', f'/{a.node}/energy')
+        meshes, energies, obstacles = read_bag(Path(a.bag), f'/{a.node}/mesh',
+                                               f'/{a.node}/energy',
+                                               f'/{a.node}/obstacle_markers')
     else:
         ap.error('give a BAG directory or --live SECONDS')
-    for p in render(meshes, energies, Path(a.output), a.times, a.frames):
+    for p in render(meshes, energies, Path(a.output), a.times, a.frames,
+                    obstacles if a.bag else ()):
         print(f'render: wrote {p}')
     return 0
 
