@@ -61,3 +61,26 @@ def test_shared_peer_model_takes_each_runs_settings():
     assert model.opt.integrator == fresh.opt.integrator == mujoco.mjtIntegrator.mjINT_DISCRETE
     assert (model.dof_damping == fresh.dof_damping).all() and not model.dof_damping.any()
     assert not data.qvel.any() and data.time == 0.0
+
+
+def test_peer_contact_scene_is_ours():
+    # the MuJoCo side of the contact benchmark: the same cloth on the ground, the same
+    # six obstacles (plane, five primitives, the 5,120-triangle icosphere); contact off
+    # without them
+    root = ET.fromstring(peer.contact_xml(10, 3e-4, True))
+    geoms = root.findall('./worldbody/geom')
+    assert sorted(g.get('type') for g in geoms) == ['box', 'box', 'capsule', 'cylinder',
+                                                    'mesh', 'plane', 'sphere']
+    fc = root.find('./worldbody/flexcomp')
+    assert fc.get('radius') == repr(0.002) and fc.get('pos') == f'0 0 {0.002!r}'
+    assert fc.find('contact').get('selfcollide') == 'none'
+    assert len(root.find('./asset/mesh').get('face').split()) == 3 * 5120
+    assert not fc.findall('pin')
+    off = ET.fromstring(peer.contact_xml(10, 3e-4, False))
+    assert not off.findall('./worldbody/geom')
+    assert off.find('./worldbody/flexcomp/contact').get('contype') == '0'
+    mujoco = pytest.importorskip('mujoco')
+    run = peer.contact_stepper(10, 3e-4, True)
+    run(20)
+    assert not run.bad() and run.contacts() > 0              # it lies on the ground
+    assert mujoco.__version__

@@ -299,14 +299,37 @@ def contact_scene(n: int, obstacles: bool) -> ClothSimulator:
     return sim
 
 
+def _mujoco_ms(run, batch_s: float, repeats: int = 5) -> float:
+    """Median ms per step of a MuJoCo stepper over ``repeats`` batches (nan if it went
+    bad)."""
+    run(3)
+    t = time.perf_counter()
+    run(5)
+    k = max(1, int(batch_s / ((time.perf_counter() - t) / 5)))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        run(k)
+        times.append((time.perf_counter() - t) / k)
+    return float('nan') if run.bad() else 1e3 * float(np.median(times))
+
+
 def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
     print('\n## contact: the shipped cloth resting on the ground, five primitives and a '
           '5,120-triangle mesh beside it\n')
     print('"with / without": ms per step of the same cloth with those obstacles and with '
           'none (in free fall), in alternating back-to-back batches, median of the '
-          'ratios; "field s": building the mesh obstacle\'s distance field.\n')
-    _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
-            'contacts', 'field s'))
+          'ratios; "field s": building the mesh obstacle\'s distance field. MuJoCo: the '
+          'same scene in its flex (Euler, our dt, flex radius = our contact thickness, '
+          'the icosphere as a mesh geom), with and without contact, and our step with '
+          'contact over its.\n')
+    mj = peer.available()
+    head = ['N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
+            'contacts', 'field s']
+    if mj:
+        head += ['MuJoCo ms without', 'MuJoCo ms with', 'MuJoCo with / without',
+                 'MuJoCo with / ours with']
+    _table(tuple(head))
     for n in sizes:
         import trimesh
         ico = trimesh.creation.icosphere(subdivisions=4, radius=0.2)
@@ -325,9 +348,15 @@ def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
                 got[j] = (time.perf_counter() - t) / ks[j]
                 per[j].append(got[j])
             ratios.append(got[1] / got[0])
-        print(f'| {n} | {sims[0].n_vertices} | {1e3 * np.median(per[0]):.3f} | '
-              f'{1e3 * np.median(per[1]):.3f} | {np.median(ratios):.2f} | '
-              f'{sims[1].contact_state()["contacts"]} | {field_s:.2f} |', flush=True)
+        row = (f'| {n} | {sims[0].n_vertices} | {1e3 * np.median(per[0]):.3f} | '
+               f'{1e3 * np.median(per[1]):.3f} | {np.median(ratios):.2f} | '
+               f'{sims[1].contact_state()["contacts"]} | {field_s:.2f} |')
+        if mj:
+            off = _mujoco_ms(peer.contact_stepper(n, sims[1].dt, False), batch_s)
+            on = _mujoco_ms(peer.contact_stepper(n, sims[1].dt, True), batch_s)
+            row += (f' {off:.3f} | {on:.3f} | {on / off:.2f} | '
+                    f'{on / (1e3 * np.median(per[1])):.2f} |')
+        print(row, flush=True)
 
 
 # --------------------------------------------------------------------------- the node

@@ -98,6 +98,67 @@ def scene_xml(n: int, integrator: str, dt: float, scene: Scene = SCENES['issue6'
 </mujoco>"""
 
 
+def contact_xml(n: int, dt: float, obstacles: bool, thickness: float = 0.002,
+                scene: Scene = SCENES['cloth']) -> str:
+    """MJCF of the contact benchmark (``bench.contact_scene``): the sheet, no pins, lying
+    on the ground (its vertices ``thickness`` above it, the flex radius), with the same
+    five primitives and a 5,120-triangle icosphere beside it when ``obstacles``; without
+    them, the same sheet with contact off (in free fall)."""
+    import trimesh
+    dt = float(dt)
+    t_h = math.sqrt(12.0 * (1.0 - POISSON ** 2) * scene.bending / scene.youngs_2d)
+    h = 1.0 / n
+    mass = scene.density * h * h * (n + 1) ** 2
+    geoms = asset = ''
+    contact = '<contact contype="0" conaffinity="0"/>'
+    if obstacles:
+        ico = trimesh.creation.icosphere(subdivisions=4, radius=0.2)
+        verts = ' '.join(f'{v:.6f}' for v in ico.vertices.ravel())
+        faces = ' '.join(str(int(i)) for i in ico.faces.ravel())
+        asset = f'<asset><mesh name="ico" vertex="{verts}" face="{faces}"/></asset>'
+        geoms = '\n    '.join((
+            '<geom type="plane" size="5 5 0.1"/>',
+            '<geom type="sphere" pos="0.8 0 0.2" size="0.2"/>',
+            '<geom type="box" pos="-0.8 0 0.2" size="0.2 0.2 0.2"/>',
+            '<geom type="capsule" pos="0 0.8 0.3" size="0.1 0.2"/>',
+            '<geom type="cylinder" pos="0 -0.8 0.3" size="0.1 0.2"/>',
+            '<geom type="box" pos="0.8 0.8 0.1" size="0.1 0.1 0.1" '
+            'quat="0.9238795 0 0 0.3826834"/>',
+            '<geom type="mesh" mesh="ico" pos="-0.8 -0.8 0.25"/>'))
+        contact = '<contact condim="3" friction="0.5" selfcollide="none"/>'
+    return f"""<mujoco model="contact{n}">
+  <option timestep="{dt!r}" integrator="Euler" gravity="0 0 {-GRAVITY}"/>
+  {asset}
+  <worldbody>
+    {geoms}
+    <flexcomp name="sheet" type="grid" count="{n + 1} {n + 1} 1" spacing="{h!r} {h!r} 1"
+              pos="0 0 {thickness!r}" dim="2" radius="{thickness!r}" mass="{mass!r}">
+      <elasticity young="{scene.youngs_2d / t_h!r}" poisson="{POISSON!r}"
+                  thickness="{t_h!r}" elastic2d="both"/>
+      {contact}
+      <edge equality="false"/>
+    </flexcomp>
+  </worldbody>
+</mujoco>"""
+
+
+def contact_stepper(n: int, dt: float, obstacles: bool, scene: Scene = SCENES['cloth']):
+    """``run(k)`` for the contact benchmark scene (:func:`contact_xml`), with the scene's
+    mass-proportional damping; ``run.bad()`` and ``run.contacts()`` (MuJoCo's contact
+    count now)."""
+    import mujoco
+    mujoco.set_mju_user_warning(_count_warning)
+    model = mujoco.MjModel.from_xml_string(contact_xml(n, dt, obstacles, scene=scene))
+    model.dof_damping[:] = scene.damping / n ** 2
+    data = mujoco.MjData(model)
+
+    def run(k: int) -> None:
+        mujoco.mj_step(model, data, nstep=k)
+    run.bad = lambda: _bad(model, data)
+    run.contacts = lambda: int(data.ncon)
+    return run
+
+
 def _count_warning(message: str) -> None:
     """MuJoCo's warning handler for the probes: an unstable probe is expected, its
     warning is read from ``data.warning`` instead of printed."""
