@@ -79,8 +79,10 @@ def test_peer_contact_scene_is_ours():
     off = ET.fromstring(peer.contact_xml(10, 3e-4, False))
     assert not off.findall('./worldbody/geom')
     assert off.find('./worldbody/flexcomp/contact').get('contype') == '0'
-    mujoco = pytest.importorskip('mujoco')
+
+
+def test_peer_contact_scene_lies_on_the_ground():
+    pytest.importorskip('mujoco')
     run = peer.contact_stepper(10, 3e-4, True)
     run(20)
-    assert not run.bad() and run.contacts() > 0              # it lies on the ground
-    assert mujoco.__version__
+    assert not run.bad() and run.contacts() > 0
