@@ -64,7 +64,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .surface_query import triangle_barycentric
+from .surface_query import point_triangle_sq
 
 __all__ = ['SHAPES', 'WIDTH', 'resolve', 'distance', 'rotation_matrix',
            'mesh_distance_field']
@@ -380,13 +380,9 @@ def distances(ob, meta, data, k, pts):
 
 @kernel()
 def _point_triangle(p0, p1, p2, a, b, c):
-    """Distance from point p to triangle (a, b, c) (the closest point of
-    :func:`.surface_query.triangle_barycentric`)."""
-    u, v, w = triangle_barycentric(p0, p1, p2, a, b, c)
-    e0 = p0 - (u * a[0] + v * b[0] + w * c[0])
-    e1 = p1 - (u * a[1] + v * b[1] + w * c[1])
-    e2 = p2 - (u * a[2] + v * b[2] + w * c[2])
-    return math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    """Distance from point p to triangle (a, b, c)
+    (:func:`.surface_query.point_triangle_sq`)."""
+    return math.sqrt(point_triangle_sq(p0, p1, p2, a, b, c)[0])
 
 
 @kernel()

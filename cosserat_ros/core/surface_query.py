@@ -23,7 +23,8 @@ import numpy as np
 
 from .compiled import kernel
 
-__all__ = ['closest_points', 'closest_points_brute', 'triangle_barycentric']
+__all__ = ['closest_points', 'closest_points_brute', 'triangle_barycentric',
+           'point_triangle_sq']
 
 
 @kernel(inline='always')
@@ -77,12 +78,13 @@ def triangle_barycentric(p0, p1, p2, a, b, c):
 
 
 @kernel(inline='always')
-def _test(p, a, b, c):
-    """(squared distance, u, v, w) from point p to triangle (a, b, c)."""
-    u, v, w = triangle_barycentric(p[0], p[1], p[2], a, b, c)
-    e0 = p[0] - (u * a[0] + v * b[0] + w * c[0])
-    e1 = p[1] - (u * a[1] + v * b[1] + w * c[1])
-    e2 = p[2] - (u * a[2] + v * b[2] + w * c[2])
+def point_triangle_sq(p0, p1, p2, a, b, c):
+    """(squared distance, u, v, w) from point (p0, p1, p2) to triangle (a, b, c): the
+    closest point of :func:`triangle_barycentric`."""
+    u, v, w = triangle_barycentric(p0, p1, p2, a, b, c)
+    e0 = p0 - (u * a[0] + v * b[0] + w * c[0])
+    e1 = p1 - (u * a[1] + v * b[1] + w * c[1])
+    e2 = p2 - (u * a[2] + v * b[2] + w * c[2])
     return e0 * e0 + e1 * e1 + e2 * e2, u, v, w
 
 
@@ -90,7 +92,8 @@ def _test(p, a, b, c):
 def _consider(p, x, faces, t, q, best, tri, bary):
     """Triangle t for point q: if closer than ``best`` (a squared distance), it becomes
     the answer (tri, bary); returns the new best."""
-    dd, u, v, w = _test(p, x[faces[t, 0]], x[faces[t, 1]], x[faces[t, 2]])
+    dd, u, v, w = point_triangle_sq(p[0], p[1], p[2], x[faces[t, 0]], x[faces[t, 1]],
+                                    x[faces[t, 2]])
     if dd < best:
         tri[q] = t
         bary[q, 0] = u
