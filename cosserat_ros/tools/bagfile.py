@@ -20,7 +20,7 @@ chunks, when the topic is added, so every kept chunk's messages have theirs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import io
 import os
 from pathlib import Path
@@ -84,7 +84,7 @@ class _Mark:
     counts: Dict[int, int]
     start: int
     end: int
-    chunk_indexes: List[bytes] = field(default_factory=list)
+    chunks: int                # how many of the writer's chunk indexes lie before it
 
 
 class BagWriter:
@@ -108,9 +108,9 @@ class BagWriter:
         self._chunk_start = self._chunk_end = None
         self._start, self._end = 2 ** 63 - 1, 0
         self._closed = False
-        self._new_indexes: List[bytes] = []
+        self._chunk_indexes: List[bytes] = []          # one Chunk Index record per chunk
         self._emit(MAGIC + _record(0x01, _str('ros2') + _str(_LIBRARY)))
-        self._marks = [self._mark([])]
+        self._marks = [self._mark()]
 
     # ------------------------------------------------------------------ writing
     def _write(self, data: bytes):
@@ -123,15 +123,14 @@ class BagWriter:
         self._crc = zlib.crc32(data, self._crc)
         self._pos += len(data)
 
-    def _mark(self, chunk_indexes) -> _Mark:
+    def _mark(self) -> _Mark:
         return _Mark(self._pos, self._crc, {t.cid: t.count for t in self.topics.values()},
-                     self._start, self._end, list(chunk_indexes))
+                     self._start, self._end, len(self._chunk_indexes))
 
     def _durable(self):
         """Flush and sync what was written and remember the point."""
         os.fsync(self._f.fileno())
-        self._marks.append(self._mark(self._marks[-1].chunk_indexes + self._new_indexes))
-        self._new_indexes = []
+        self._marks.append(self._mark())
         del self._marks[:-3]                         # a few points back are enough
 
     def add(self, topic: str, type_name: str, qos: Optional[str] = None) -> None:
@@ -197,10 +196,10 @@ class BagWriter:
             self._emit(_record(0x07, struct.pack('<HI', cid, len(body)) + body))
         idx_len = self._pos - chunk_at - chunk_len
         omap = b''.join(struct.pack('<HQ', c, o) for c, o in offsets.items())
-        self._new_indexes = [_record(0x08, struct.pack('<QQQQ', start, end, chunk_at, chunk_len)
-                                     + struct.pack('<I', len(omap)) + omap
-                                     + struct.pack('<Q', idx_len) + _str('')
-                                     + struct.pack('<QQ', len(data), len(data)))]
+        self._chunk_indexes.append(_record(
+            0x08, struct.pack('<QQQQ', start, end, chunk_at, chunk_len)
+            + struct.pack('<I', len(omap)) + omap + struct.pack('<Q', idx_len) + _str('')
+            + struct.pack('<QQ', len(data), len(data))))
         self._start, self._end = min(self._start, start), max(self._end, end)
         self._chunk = io.BytesIO()
         self._index = {}
@@ -227,11 +226,11 @@ class BagWriter:
                         summary.write(r)
             group(0x03, [r for r in self._summary_records if r[0] == 0x03])
             group(0x04, [r for r in self._summary_records if r[0] == 0x04])
-            group(0x08, mark.chunk_indexes)
+            group(0x08, self._chunk_indexes[:mark.chunks])
             counts = b''.join(struct.pack('<HQ', t.cid, t.count) for t in self.topics.values())
             group(0x0B, [_record(0x0B, struct.pack(
                 '<QHIIIIQQ', sum(t.count for t in self.topics.values()), len(self._schemas),
-                len(self.topics), 0, 0, len(mark.chunk_indexes),
+                len(self.topics), 0, 0, mark.chunks,
                 self._start if self._end else 0, self._end)
                 + struct.pack('<I', len(counts)) + counts)])
             offsets_at = at + summary.tell()
@@ -283,7 +282,8 @@ class BagWriter:
                             'before it') from exc
 
     def _metadata(self, mark: _Mark):
-        topics = [t for t in self.topics.values() if t.cid in mark.counts or t.count == 0]
+        # the topics whose channel record lies before the mark (add() marks after it)
+        topics = [t for t in self.topics.values() if t.cid in mark.counts]
         count = sum(t.count for t in topics)
         start = mark.start if count else 0
         duration = max(0, mark.end - mark.start) if count else 0
