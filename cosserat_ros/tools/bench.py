@@ -299,21 +299,6 @@ def contact_scene(n: int, obstacles: bool) -> ClothSimulator:
     return sim
 
 
-def _mujoco_ms(run, batch_s: float, repeats: int = 5) -> float:
-    """Median ms per step of a MuJoCo stepper over ``repeats`` batches (nan if it went
-    bad)."""
-    run(3)
-    t = time.perf_counter()
-    run(5)
-    k = max(1, int(batch_s / ((time.perf_counter() - t) / 5)))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        run(k)
-        times.append((time.perf_counter() - t) / k)
-    return float('nan') if run.bad() else 1e3 * float(np.median(times))
-
-
 def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
     print('\n## contact: the shipped cloth resting on the ground, five primitives and a '
           '5,120-triangle mesh beside it\n')
@@ -352,8 +337,8 @@ def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
                f'{1e3 * np.median(per[1]):.3f} | {np.median(ratios):.2f} | '
                f'{sims[1].contact_state()["contacts"]} | {field_s:.2f} |')
         if mj:
-            off = _mujoco_ms(peer.contact_stepper(n, sims[1].dt, False), batch_s)
-            on = _mujoco_ms(peer.contact_stepper(n, sims[1].dt, True), batch_s)
+            off = peer.median_ms(peer.contact_stepper(n, sims[1].dt, False), batch_s)
+            on = peer.median_ms(peer.contact_stepper(n, sims[1].dt, True), batch_s)
             row += (f' {off:.3f} | {on:.3f} | {on / off:.2f} | '
                     f'{on / (1e3 * np.median(per[1])):.2f} |')
         print(row, flush=True)

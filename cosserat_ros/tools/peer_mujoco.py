@@ -246,7 +246,13 @@ def ms_per_step(n: int, integrator: str, dt: float, batch_s: float = 0.2,
                 repeats: int = 5, scene: Scene = SCENES['issue6']) -> float:
     """Median wall time of one step [ms] over ``repeats`` batches (the sheet falling from
     rest under gravity, as our own benchmark), nan if the run goes bad."""
-    run = stepper(n, integrator, dt, scene)
+    return median_ms(stepper(n, integrator, dt, scene), batch_s, repeats)
+
+
+def median_ms(run, batch_s: float = 0.2, repeats: int = 5) -> float:
+    """Median wall time of one step [ms] of stepper ``run`` (:func:`stepper`,
+    :func:`contact_stepper`) over ``repeats`` batches of about ``batch_s`` s each, nan if
+    the run goes bad."""
     run(2)
     t = time.perf_counter()
     run(3)
