@@ -20,7 +20,8 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'colormap', 'percentile', 'TRIANGLE_LIST',
+__all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'POINT_FIELDS',
+           'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
            'PINS_ID', 'HANDLES_ID']
 
@@ -192,10 +193,7 @@ def shape_mesh(positions: np.ndarray, faces: np.ndarray) -> bytes:
     as vertex indices, the vertices [m]. It has no header: it is in the node's frame_id at
     the time of the ``~/mesh`` message of the same tick."""
     w = CdrWriter()
-    w.prim('I', len(faces))
-    if len(faces):
-        w._align(4)
-        w._raw(np.ascontiguousarray(faces, dtype='<u4').tobytes())
+    w.array(faces, '<u4', count=len(faces))          # MeshTriangle: uint32[3], no count
     w.array(positions, '<f8', count=len(positions))
     return w.bytes()
 

@@ -263,11 +263,8 @@ class ClothNode(Node):
                               f'{", ".join(bad)} for {self.get_fully_qualified_name()} '
                               '(README lists them all)')
         files = params_files(argv)
-        found = []
-        for path in files:
-            mine, every = node_sections(path, self.get_fully_qualified_name())
-            found += mine
-        if files and not found:
+        if files and not any(node_sections(path, self.get_fully_qualified_name())[0]
+                             for path in files):
             raise ConfigError(f'{", ".join(files)}: no section for node '
                               f'{self.get_fully_qualified_name()} (a file for this node '
                               f'starts with "{self.get_name()}:" or "/**:", then '
@@ -990,10 +987,14 @@ class ClothNode(Node):
         return self._status(f'{self.get_name()}: simulation', level, msg, vals)
 
 
+def _security_requested() -> bool:
+    return os.environ.get('ROS_SECURITY_ENABLE', '').lower() == 'true'
+
+
 def _security_reason(exc: Exception) -> Optional[str]:
     """The one-line reason to give when ROS security was requested and rcl failed: the
     middleware's own first line, what was asked for, and where to look (README)."""
-    if os.environ.get('ROS_SECURITY_ENABLE', '').lower() != 'true':
+    if not _security_requested():
         return None
     text = str(exc).strip().splitlines()
     first = text[0] if text else type(exc).__name__
@@ -1016,12 +1017,12 @@ def main(args=None) -> int:
         return 2
     node = None
     code = 0
-    if os.environ.get('ROS_SECURITY_ENABLE', '').lower() == 'true':
+    if _security_requested():
         # rclpy's own note while it undoes a node that security kept from starting
         import warnings
         warnings.filterwarnings('ignore', message='Failed to fini rosout publisher')
     try:
-        node = ClothNode(argv=sys.argv if args is None else args)
+        node = ClothNode(argv=args)                  # None: sys.argv, as rclpy.init
         rclpy.spin(node)
     except ConfigError as exc:
         print(f'cloth_node: error: {exc}', file=sys.stderr)

@@ -253,7 +253,7 @@ def _sections(tree, prefix=''):
         path = (prefix + '/' + str(key).strip('/')).replace('//', '/')
         if isinstance(value, dict) and 'ros__parameters' in value:
             out.append(path)
-        out += _sections(value, path) if isinstance(value, dict) else []
+        out += _sections(value, path)
     return out
 
 
@@ -261,11 +261,11 @@ def _matches(pattern: str, fqn: str) -> bool:
     """rcl's node-name wildcards: ``*`` is one token, ``**`` any number of them; a name
     without a leading slash is in the root namespace (as rcl reads it)."""
     import re
+    if pattern.strip('/') == '**':
+        return True
     tokens = [t for t in pattern.strip('/').split('/') if t]
     regex = '/'.join('.*' if t == '**' else '[^/]*' if t == '*' else re.escape(t)
                      for t in tokens)
-    if pattern.strip('/') == '**':
-        return True
     return re.fullmatch('/' + regex.replace('.*/', '(.*/)?'), fqn) is not None
 
 
