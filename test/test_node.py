@@ -62,6 +62,14 @@ class Harness:
             self.ex.spin_once(timeout_sec=0.01)
         return cond()
 
+    def pause(self, paused: bool):
+        """Call ~/pause from the peer; the response."""
+        if not hasattr(self, '_pause'):
+            self._pause = self.peer.create_client(SetBool, '/cloth_node/pause')
+        fut = self._pause.call_async(SetBool.Request(data=paused))
+        self.spin_until(fut.done)
+        return fut.result()
+
     def send(self, kind, msg):
         self.pubs[kind].publish(msg)
         self.spin(0.15)
@@ -217,10 +225,8 @@ def test_divergence_pauses_reports_and_reset_recovers(h):
     assert h.spin_until(lambda: any(d.status[0].level == DiagnosticStatus.ERROR
                                     for d in h.diags), 5)
     h.node.sim.dt = 2e-4
-    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
-    fut = cli.call_async(SetBool.Request(data=False))
-    h.spin_until(fut.done)
-    assert not fut.result().success and 'reset' in fut.result().message
+    res = h.pause(False)
+    assert not res.success and 'reset' in res.message
     cli = h.peer.create_client(Trigger, '/cloth_node/reset')
     fut = cli.call_async(Trigger.Request())
     h.spin_until(fut.done)
@@ -232,15 +238,11 @@ def test_divergence_pauses_reports_and_reset_recovers(h):
 
 
 def test_pause_service(h):
-    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
-    fut = cli.call_async(SetBool.Request(data=True))
-    h.spin_until(fut.done)
-    assert fut.result().success
+    assert h.pause(True).success
     t = h.node.sim.time
     h.spin(0.3)
     assert h.node.sim.time == t
-    fut = cli.call_async(SetBool.Request(data=False))
-    h.spin_until(fut.done)
+    h.pause(False)
     h.spin(0.3)
     assert h.node.sim.time > t
 
@@ -642,9 +644,7 @@ def test_summed_rows_cannot_exceed_max_force(h):
     # 1,000 rows of 10 N on one vertex (each within max_force = 10 N) and point forces that
     # land on a vertex already loaded by ~/vertex_forces are refused. Paused, so that the
     # point below stays on the vertex it is read from
-    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
-    fut = cli.call_async(SetBool.Request(data=True))
-    h.spin_until(fut.done)
+    h.pause(True)
     centre = (N // 2) * (N + 1) + N // 2
     h.send('vertex', rows(np.tile([centre, 0.0, 0.0, 10.0], (1000, 1))))
     assert h.node.rejected['vertex_forces'] == 1 and not h.node.sim.vertex_forces.any()
@@ -654,8 +654,7 @@ def test_summed_rows_cannot_exceed_max_force(h):
     h.send('point', rows([x[0], x[1], x[2], 0.0, 0.0, 9.0]))     # all of it on the centre
     assert h.node.rejected['point_forces'] == 1
     assert h.node.sim.vertex_forces.sum(axis=0)[2] == pytest.approx(8.0)
-    fut = cli.call_async(SetBool.Request(data=False))
-    h.spin_until(fut.done)
+    h.pause(False)
     h.spin(0.3)
     assert h.node.diverged is None
 
@@ -689,9 +688,7 @@ def test_observe_only_node_takes_no_commands():
 
 
 def test_a_paused_node_publishes_on_change_and_once_a_second(h):
-    cli = h.peer.create_client(SetBool, '/cloth_node/pause')
-    fut = cli.call_async(SetBool.Request(data=True))
-    h.spin_until(fut.done)
+    h.pause(True)
     h.spin(0.3)
     h.meshes.clear()
     h.spin(2.1)
@@ -700,8 +697,7 @@ def test_a_paused_node_publishes_on_change_and_once_a_second(h):
     h.meshes.clear()
     h.node.set_parameters([Parameter('coloring', value='speed')])
     assert h.spin_until(lambda: h.meshes, node_module.PAUSED_TICK + 0.3)
-    fut = cli.call_async(SetBool.Request(data=False))
-    h.spin_until(fut.done)
+    h.pause(False)
     h.meshes.clear()
     h.spin(0.5)
     assert len(h.meshes) >= 10                                # running: every tick again

@@ -89,6 +89,15 @@ def call(node, ex, srv_type, name, request):
     return fut.result()
 
 
+def watch(node):
+    """(arrival times of ~/mesh, received /diagnostics): what a hostile-peer test checks."""
+    meshes, diags = [], []
+    node.create_subscription(MarkerArray, '/cloth_node/mesh',
+                             lambda m: meshes.append(time.monotonic()), 200, raw=True)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    return meshes, diags
+
+
 def sim_time(energy):
     return float({kv.key: kv.value for kv in energy.status[0].values}['sim_time'])
 
@@ -224,10 +233,7 @@ def test_a_hostile_peer_cannot_stall_the_node_through_obstacles_and_handles(tmp_
     node, ex = client
     params = tmp_path / 'hostile.yaml'
     params.write_text(HOSTILE)
-    meshes, diags = [], []
-    node.create_subscription(MarkerArray, '/cloth_node/mesh',
-                             lambda m: meshes.append(time.monotonic()), 200, raw=True)
-    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    meshes, diags = watch(node)
     obstacles = node.create_publisher(MarkerArray, '/cloth_node/obstacles', 10)
     target = node.create_publisher(PoseStamped, '/cloth_node/handles/left/target', 10)
     big = Marker()
@@ -287,10 +293,7 @@ def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_
     node, ex = client
     params = tmp_path / 'flood.yaml'
     params.write_text(PARAMS.replace('nx: 12, ny: 12', 'nx: 40, ny: 40'))
-    meshes, diags = [], []
-    node.create_subscription(MarkerArray, '/cloth_node/mesh',
-                             lambda m: meshes.append(time.monotonic()), 200, raw=True)
-    node.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 10)
+    meshes, diags = watch(node)
     points = node.create_publisher(Float64MultiArray, '/cloth_node/point_forces', 10)
     vertex = node.create_publisher(Float64MultiArray, '/cloth_node/vertex_forces', 10)
     rng = np.random.default_rng(0)

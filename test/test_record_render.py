@@ -223,7 +223,6 @@ def test_a_message_larger_than_a_chunk(tmp_path):
 def test_a_write_failure_stops_the_recorder_with_a_readable_bag(node, tmp_path):
     # a file-size limit stands in for a full disk: the recorder stops with one line and
     # exit 1, and what it wrote before is a complete bag (metadata.yaml included)
-    import io
     import resource
     from mcap.reader import make_reader
     out = tmp_path / 'limited'
