@@ -10,7 +10,9 @@ lifts the corners 0.25 m while carrying them to the far edge, turning the grip a
 reads ``~/points`` and checks the fold: the vertices that started within 0.1 width of the
 grasped edge must end on the far half, and the cloth must lie on the ground (every vertex
 below 5 cm). Prints what it measured; exit 0 if folded, 1 if not, 2 if the node is not
-there. Needs ``publish.points: true`` (fold.yaml has it).
+there. Needs ``publish.points: true`` (fold.yaml has it). The pose stream runs on wall
+time, as a robot's would; the waits (settling before the grasp, after the release) are
+simulation time, read from ``~/points``, so a node slower than real time gets them whole.
 """
 from __future__ import annotations
 
@@ -66,6 +68,18 @@ def main(argv=None) -> int:
         while time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=min(0.01, max(end - time.monotonic(), 0)))
 
+    def sim_now() -> float:
+        stamp = clouds[-1].header.stamp
+        return stamp.sec + 1e-9 * stamp.nanosec
+
+    def wait_sim(seconds):
+        """Spin until the cloth's simulation time has moved on ``seconds`` (a node slower
+        than real time takes longer; at most 20 s of wall time per second asked)."""
+        target = sim_now() + seconds
+        end = time.monotonic() + 20.0 * seconds + 1.0
+        while sim_now() < target and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.01)
+
     def points():
         c = clouds[-1]
         return np.frombuffer(bytes(c.data), dtype='<f4').reshape(-1, 6)[:, :3].astype(float)
@@ -94,7 +108,7 @@ def main(argv=None) -> int:
             print(f'fold_demo: error: no {base}/points (publish.points) or handle services '
                   f'after {a.wait:g} s: start the node with config/fold.yaml', file=sys.stderr)
             return 2
-        spin(1.0)                                        # let the cloth settle on the ground
+        wait_sim(1.0)                                    # let the cloth settle on the ground
         x0 = points()
         lo, hi = x0.min(axis=0), x0.max(axis=0)
         corners = {'left': np.array([lo[0], lo[1], x0[:, 2].mean()]),
@@ -102,7 +116,7 @@ def main(argv=None) -> int:
         end_x = hi[0] - 0.03 * (hi[0] - lo[0])
         for name, p in corners.items():
             send(name, p, (0.0, 0.0, 0.0, 1.0))
-        spin(0.3)
+        wait_sim(0.3)
         for name in corners:
             res = call(name, True)
             if res is None or not res.success:
@@ -116,10 +130,10 @@ def main(argv=None) -> int:
             for name, p in corners.items():
                 send(name, *fold_path(k / steps, p, end_x))
             spin(max(0.0, t0 + k / RATE - time.monotonic()))
-        spin(0.3)
+        wait_sim(0.3)
         for name in corners:
             call(name, False)
-        spin(a.settle)
+        wait_sim(a.settle)
         x1 = points()
         edge = x0[:, 0] < lo[0] + 0.1 * (hi[0] - lo[0])
         mid = 0.5 * (lo[0] + hi[0])
