@@ -17,7 +17,8 @@ from cosserat_ros.fast.plan import build_plan
 from cosserat_ros.fast.simd import lane, splat, vfma, vload, vload3, vset, vsqrt, vstore
 from cosserat_ros.fast.workshare import split, take
 from cosserat_ros.mesh import ClothMesh, grid_mesh
-from cosserat_ros.simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
+from cosserat_ros.simulator import (Air, ClothSimulator, Material, SimulationDiverged,
+                                    steps_tiled)
 
 
 def _mesh(name, n=13):
@@ -54,7 +55,7 @@ def test_the_step_force_is_minus_the_sum_of_the_term_gradients(name, phi, simd):
 @pytest.mark.parametrize('name', ['irregular', 'icosphere'])
 def test_the_fast_step_follows_the_reference_step(name):
     """300 steps of the compiled step against the update with the terms' forces summed
-    (``solvers.explicit.reference_step``), with pins, forces, a field and damping."""
+    (``solvers.explicit.reference_step``), with pins, forces, a field, air and damping."""
     mesh = _mesh(name)
     mat = Material(zeta=20.0, xi=1e-3, phi=2e-3, density=0.2, damping=0.3)
     sims = []
@@ -64,6 +65,8 @@ def test_the_fast_step_follows_the_reference_step(name):
         sim.gravity = (0.0, 0.0, -9.81)
         sim.force_field = (0.3, 0.0, 0.1)
         sim.set_vertex_forces([3, 3, 9], [[0, 0, 1e-3], [1e-3, 0, 0], [0, -1e-3, 0]])
+        sim.air = Air(density=5.0, lift=0.8)
+        sim.wind = (2.0, 0.5, -1.0)
         sims.append(sim)
     sims[0].step(300)
     s = sims[1]
@@ -233,6 +236,8 @@ def test_the_step_is_the_same_to_the_bit_however_the_threads_share_it(phi):
             sim.pin([0, 5])
             sim.gravity = (0, 0, -9.81)
             sim.force_field = (0.3, 0.0, 0.1)
+            sim.air = Air(density=5.0, lift=0.8)
+            sim.wind = (2.0, 0.5, -1.0)
             assert _run(sim, one_region, 300, nr) == 300
             runs.append(sim.state.copy())
     assert runs[0].acc[0] != 0 and runs[0].acc[1] > 0           # work and dissipation
@@ -353,6 +358,8 @@ def test_tiled_step_gives_the_same_trajectory_to_the_bit(name, parts, phi):
         sim.gravity = (0.0, 0.0, -9.81)
         sim.pin(np.arange(0, mesh.n_vertices, 97))
         sim.set_vertex_forces([5, 40], [[0.0, 0.0, 1e-3], [1e-3, 0.0, 0.0]])
+        sim.air = Air(density=5.0, lift=0.8)
+        sim.wind = (2.0, 0.5, -1.0)
         sim.set_positions(x0)
         sim.set_velocities(v0)
         sim.step(40)

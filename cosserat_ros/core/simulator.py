@@ -31,7 +31,8 @@ import warnings
 import numpy as np
 
 from . import energy as _energy
-from .constants import DIVERGENCE_SPEED_FACTOR
+from .air import Air, air_pass, air_row
+from .constants import DIVERGENCE_SPEED_FACTOR, VERTEX_CHUNK
 from .geometry import CURVATURE_ESTIMATORS, Geometry
 from .material import Material, material_tensor
 from .mesh import ClothMesh
@@ -44,7 +45,7 @@ from .state import Control, State
 from .terms import covariant
 from .terms.jet import model_scratch
 
-__all__ = ['ClothSimulator', 'Material', 'SimulationDiverged', 'steps_tiled',
+__all__ = ['ClothSimulator', 'Material', 'Air', 'SimulationDiverged', 'steps_tiled',
            'DIVERGENCE_METHODS']
 
 
@@ -115,6 +116,8 @@ class ClothSimulator:
         self._user_pins = np.zeros(n, dtype=bool)
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
+        self._air: Optional[Air] = None
+        self._wind = np.zeros(3)
         self._scratch = model_scratch(self.model)
         self._time = 0.0
         self._steps = 0
@@ -271,8 +274,41 @@ class ClothSimulator:
         return self._f_vertex.copy()
 
     def _update_applied(self):
-        self.control.f_applied[:] = (self._f_vertex
-                                     + self.coefficients.mass[:, None] * self._force_field)
+        c = self.control
+        c.f_external[:] = self._f_vertex + self.coefficients.mass[:, None] * self._force_field
+        c.air[:] = air_row(self._air, self._wind)
+        if self._air is None:
+            c.f_applied[:] = c.f_external
+        else:
+            vf = self.model.vertex_faces
+            air_pass(self.state.x, self.state.v, self.model.faces.corners, vf.ptr, vf.face,
+                     c, max(1, -(-self.n_vertices // VERTEX_CHUNK)))
+
+    # ------------------------------------------------------------------ air
+    @property
+    def air(self) -> Optional[Air]:
+        """The air around the cloth (:class:`Air`: density, drag and lift coefficients),
+        or None (default): no aerodynamic force. Each triangle then feels pressure drag and
+        lift from its velocity relative to :attr:`wind` (:mod:`cosserat_ros.core.air`)."""
+        return self._air
+
+    @air.setter
+    def air(self, air: Optional[Air]):
+        if air is not None and not isinstance(air, Air):
+            raise ValueError(f'air must be an Air or None, got {type(air).__name__}')
+        self._air = air
+        self._update_applied()
+
+    @property
+    def wind(self) -> np.ndarray:
+        """Velocity of the air (3,) [m/s], world frame; (0, 0, 0) by default. Acts only
+        when :attr:`air` is set."""
+        return self._wind.copy()
+
+    @wind.setter
+    def wind(self, w):
+        self._wind = _as_vec3(w, 'wind')
+        self._update_applied()
 
     def reset(self) -> None:
         """Back to the rest shape at rest: positions, velocities, time, step count and the

@@ -12,7 +12,12 @@ field             shape / unit      meaning
 ``State.v``       (n,3) [m/s]       velocities (at the half step of the leapfrog)
 ``State.acc``     (2,) [J]          running balance since the last reset: external work of
                                     the applied forces, energy dissipated by damping
-``Control.f_applied`` (n,3) [N]     nodal forces plus the force field ``m_i F``
+``Control.f_external`` (n,3) [N]    what users command: nodal forces plus the force
+                                    field ``m_i F``
+``Control.f_applied`` (n,3) [N]     the applied force of the step: ``f_external``, plus
+                                    the air force when air is on (:mod:`.air` writes it
+                                    before each update)
+``Control.air`` (6,)                air on/off, its coefficients and the wind (:mod:`.air`)
 ``Control.gravity`` (3,) [m/s^2]    gravitational acceleration g
 ``Control.pinned`` (n,) bool        vertices whose motion is prescribed: pins and the
                                     vertices grasp handles hold (:mod:`.handles`)
@@ -61,7 +66,9 @@ class State(NamedTuple):
 class Control(NamedTuple):
     """What users command (module table)."""
 
+    f_external: np.ndarray
     f_applied: np.ndarray
+    air: np.ndarray
     gravity: np.ndarray
     pinned: np.ndarray
     pin_velocity: np.ndarray
@@ -74,10 +81,11 @@ class Control(NamedTuple):
 
     @classmethod
     def empty(cls, n: int, thickness: float = 2e-3) -> 'Control':
+        from .air import AIR_WIDTH
         from .contact import C_WIDTH, WIDTH
         contact = np.zeros((n, C_WIDTH))
         contact[:, 3] = -1.0
-        return cls(np.zeros((n, 3)), np.zeros(3), np.zeros(n, dtype=bool),
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH), np.zeros(3), np.zeros(n, dtype=bool),
                    np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
                    np.array([float(thickness)]), contact)
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..core.compiled import kernel
 from ..core.solvers.update import advance_vertex, contact_list, contact_range
+from ..core.air import air_pass, air_range
 from .lanes import vertex_chunk
 from .workshare import arrive, claim, split
 
@@ -205,6 +206,8 @@ def run_two_pass(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lan
     the one its material needs)."""
     x, v, acc = state.x, state.v, state.acc
     for s in range(nsteps):
+        if control.air[0] != 0.0:
+            air_pass(x, v, faces.corners, vf.ptr, vf.face, control, work.part.shape[0])
         vertex_pass(x, lanes, plan, faces, vf, vertices, coeff, work)
         if integrate(tr_ptr, vf.ptr, plan, work, x, v, control, coeff, dt, vmax2, acc) > 0:
             return s
@@ -217,6 +220,8 @@ def run_two_pass_coupled(nsteps, state, control, coeff, faces, vf, vertices, tr_
     """:func:`run_two_pass` with the coupling (phi != 0)."""
     x, v, acc = state.x, state.v, state.acc
     for s in range(nsteps):
+        if control.air[0] != 0.0:
+            air_pass(x, v, faces.corners, vf.ptr, vf.face, control, work.part.shape[0])
         vertex_pass_coupled(x, lanes, plan, faces, vf, vertices, coeff, work)
         if integrate(tr_ptr, vf.ptr, plan, work, x, v, control, coeff, dt, vmax2, acc) > 0:
             return s
@@ -264,10 +269,17 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
     nu = split(ushare, nuc)
     sync[0] = 0
     sync[1] = nsteps
+    air = control.air[0] != 0.0
+    asize = (x.shape[0] + nthr - 1) // nthr
     for t in nb.prange(nthr):
         for s in range(nsteps):
             if t == 0 and s > 0:
                 split(ushare, nuc)          # the others are in the vertex pass
+            if air:
+                # this thread's slice of the air force: it reads x and v, which the last
+                # barrier left complete, and writes f_applied, which only the update reads
+                air_range(nb.int64(t * asize), nb.int64(min(x.shape[0], (t + 1) * asize)),
+                          x, v, faces.corners, vf_ptr, vf.face, control)
             c, k = claim(share, t, nr, 0)
             while c >= 0:
                 vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
@@ -465,6 +477,8 @@ def _run_tiled(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lanes
     x, v, acc = state.x, state.v, state.acc
     pacc = np.zeros((plan.part_tile.shape[0] - 1, 3))
     for s in range(nsteps):
+        if control.air[0] != 0.0:
+            air_pass(x, v, faces.corners, vf.ptr, vf.face, control, work.part.shape[0])
         if coupled:
             vertex_parts_coupled(x, v, lanes, plan, faces, vf, vertices, tr_ptr, control,
                                  coeff, work, dt, vmax2, pacc)

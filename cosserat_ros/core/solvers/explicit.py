@@ -22,6 +22,7 @@ from ...fast.plan import build_plan
 from ...fast.simd import LANES
 from ...fast.workshare import start_threads, usable_cpus
 from ...fast import step as _fast
+from ..air import air_pass
 from ..compiled import kernel
 from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
 from ..terms import covariant, TERMS
@@ -75,13 +76,15 @@ def advance_all(x, v, force, control, coeff, dt, vmax2, part, acc):
 
 
 @kernel()
-def run_covariant(nsteps, state, control, coeff, jets, vertices, st_T, cw, part, force, dt,
-                  vmax2):
+def run_covariant(nsteps, state, control, coeff, faces, vf, jets, vertices, st_T, cw, part,
+                  force, dt, vmax2):
     """``nsteps`` steps with the seed route's force (``terms.covariant``); returns the
     steps done (fewer: that step diverged). A kernel of its own, so that a process that
     never selects the route never compiles it."""
     x, v, acc = state.x, state.v, state.acc
     for s in range(nsteps):
+        if control.air[0] != 0.0:
+            air_pass(x, v, faces.corners, vf.ptr, vf.face, control, part.shape[0])
         covariant.covariant_forces(x, jets, vertices, st_T, coeff.zeta, coeff.xi, coeff.phi,
                                    cw, force)
         if advance_all(x, v, force, control, coeff, dt, vmax2, part, acc) > 0:
@@ -155,8 +158,9 @@ class ExplicitSolver:
         next one diverged and ``state`` is invalid: the caller restores it)."""
         m = self.model
         if self.divergence == 'covariant':
-            return run_covariant(nsteps, state, control, coeff, m.jets, m.vertices, m.st_T,
-                                 self.cov_work, self.work.part, self.work.force, dt, vmax2)
+            return run_covariant(nsteps, state, control, coeff, m.faces, m.vertex_faces,
+                                 m.jets, m.vertices, m.st_T, self.cov_work, self.work.part,
+                                 self.work.force, dt, vmax2)
         nthr = self._share_threads()
         coupled = coeff.phi != 0.0
         if nthr:
@@ -206,6 +210,8 @@ def reference_step(model, coeff, state, control, dt: float, nsteps: int = 1,
     (:data:`..terms.TERMS`); returns the steps completed."""
     part = np.zeros((-(-model.n_vertices // VERTEX_CHUNK), 3))
     for s in range(nsteps):
+        air_pass(state.x, state.v, model.faces.corners, model.vertex_faces.ptr,
+                 model.vertex_faces.face, control, part.shape[0])
         f = internal_force_reference(model, coeff, state.x)
         if advance_all(state.x, state.v, f, control, coeff, dt, vmax2, part, state.acc) > 0:
             return s
