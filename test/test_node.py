@@ -49,7 +49,8 @@ class Harness:
                                                  10),
             'point': self.peer.create_publisher(Float64MultiArray, '/cloth_node/point_forces',
                                                 10),
-            'field': self.peer.create_publisher(Vector3Stamped, '/cloth_node/force_field', 10)}
+            'field': self.peer.create_publisher(Vector3Stamped, '/cloth_node/force_field', 10),
+            'wind': self.peer.create_publisher(Vector3Stamped, '/cloth_node/wind', 10)}
 
     def spin(self, seconds):
         end = time.monotonic() + seconds
@@ -172,7 +173,7 @@ def test_bad_commands_rejected_and_simulation_keeps_running(h):
         h.send(kind, msg)
     assert sum(h.node.rejected.values()) == len(bad)
     assert h.node.rejected == {'vertex_forces': 8, 'point_forces': 3, 'force_field': 3,
-                               'obstacles': 0, 'handles': 0}
+                               'wind': 0, 'obstacles': 0, 'handles': 0}
     assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
     assert _steps(h) > before
     # a flood at kHz rates: all counted, nothing breaks
@@ -209,6 +210,46 @@ def test_forces_move_the_cloth_and_lapse(h):
     h.node.set_parameters([Parameter('force_timeout', value=0.3)])
     h.spin(0.8)
     assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
+
+
+def test_wind_blows_the_cloth_in_air_bad_wind_is_refused_and_it_lapses(h):
+    """~/wind: refused while air is off, then with air on a 6 m/s wind across the hanging
+    cloth pushes it downwind; NaN, another frame and a wind above max_wind are refused
+    with the reason; the message lapses back to the steady air.wind."""
+    h.send('wind', field([6.0, 0.0, 0.0]))
+    assert h.spin_until(lambda: h.node.rejected['wind'] == 1, 5)
+    assert not h.node.sim.wind.any()
+    res = h.node.set_parameters([Parameter('air.enabled', value=True),
+                                 Parameter('air.wind', value=[0.0, 0.0, 0.5])])
+    assert all(r.successful for r in res)
+    assert h.node.sim.air is not None and h.node.sim.wind[2] == 0.5
+    h.send('wind', field([0.0, 0.0, 6.0], frame=''))
+    assert h.spin_until(lambda: h.node.sim.wind[2] == 6.0, 5)
+    h.spin(0.2)
+    # the air force of the steps the node takes: upwards, the way the wind blows
+    c = h.node.sim.control
+    assert (c.f_applied - c.f_external)[:, 2].sum() > 0.01
+    for bad, why in ((field([np.nan, 0, 0]), 'non-finite'), (field([1, 0, 0], 'map'), 'frame'),
+                     (field([0, 0, 60.0]), 'max_wind')):
+        n = h.node.rejected['wind']
+        h.send('wind', bad)
+        assert h.spin_until(lambda: h.node.rejected['wind'] == n + 1, 5), why
+    assert h.node.sim.wind[2] == 6.0
+    for name, value, why in (('air.wind', [0.0, 0.0, 80.0], 'max_wind'),
+                             ('air.density', -1.0, ''), ('air.drag', float('nan'), ''),
+                             ('air.wind', [1.0, 2.0], '3 finite numbers')):
+        r = h.node.set_parameters([Parameter(name, value=value)])[0]
+        assert not r.successful and why in r.reason, (name, r.reason)
+    diag = {}
+    assert h.spin_until(lambda: diag.update({kv.key: kv.value for d in h.diags[-1:]
+                                             for kv in d.status[0].values}) or
+                        diag.get('wind_speed') == '6.0', 5), diag
+    assert diag['air'] == 'True'
+    h.node.set_parameters([Parameter('force_timeout', value=0.3)])
+    assert h.spin_until(lambda: h.node.sim.wind[2] == 0.5, 5)        # lapsed: air.wind
+    h.node.set_parameters([Parameter('air.enabled', value=False)])
+    assert h.node.sim.air is None
+    assert h.node.diverged is None
 
 
 def test_divergence_pauses_reports_and_reset_recovers(h):

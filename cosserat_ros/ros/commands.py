@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.surface_query import closest_points
 
-__all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field',
+__all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field', 'wind',
            'check_totals', 'obstacle_markers', 'obstacle_name', 'MAX_MARKERS',
            'MAX_MESH_POINTS', 'MAX_ROWS', 'MAX_FORCE_BYTES', 'handle_target']
 
@@ -111,17 +111,32 @@ def check_totals(indices: np.ndarray, forces: np.ndarray, n_vertices: int,
                            f'max_force {max_force:.4g} N')
 
 
-def force_field(msg, frame_id: str, max_acceleration: float) -> np.ndarray:
-    """A ``geometry_msgs/Vector3Stamped`` force per unit mass [m/s^2] in ``frame_id`` (an
-    empty frame is taken as ``frame_id``) -> (3,)."""
+def _stamped_vector(msg, frame_id: str) -> np.ndarray:
     if msg.header.frame_id not in ('', frame_id):
         raise CommandError(f'frame {msg.header.frame_id!r} is not {frame_id!r} (no tf here)')
     v = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
     if not np.all(np.isfinite(v)):
         raise CommandError('non-finite value')
+    return v
+
+
+def force_field(msg, frame_id: str, max_acceleration: float) -> np.ndarray:
+    """A ``geometry_msgs/Vector3Stamped`` force per unit mass [m/s^2] in ``frame_id`` (an
+    empty frame is taken as ``frame_id``) -> (3,)."""
+    v = _stamped_vector(msg, frame_id)
     if np.linalg.norm(v) > max_acceleration:
         raise CommandError(f'|F| = {np.linalg.norm(v):.4g} m/s^2 above max_acceleration '
                            f'{max_acceleration:.4g}')
+    return v
+
+
+def wind(msg, frame_id: str, max_wind: float) -> np.ndarray:
+    """A ``geometry_msgs/Vector3Stamped`` wind velocity [m/s] in ``frame_id`` (an empty
+    frame is taken as ``frame_id``) no faster than ``max_wind`` -> (3,)."""
+    v = _stamped_vector(msg, frame_id)
+    if np.linalg.norm(v) > max_wind:
+        raise CommandError(f'|wind| = {np.linalg.norm(v):.4g} m/s above max_wind '
+                           f'{max_wind:.4g}')
     return v
 
 

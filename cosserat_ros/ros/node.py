@@ -16,6 +16,8 @@ name                     type                                   direction
 ``~/vertex_forces``      std_msgs/Float64MultiArray             in: rows [index, fx, fy, fz]
 ``~/point_forces``       std_msgs/Float64MultiArray             in: rows [px,py,pz, fx,fy,fz]
 ``~/force_field``        geometry_msgs/Vector3Stamped           in: uniform [m/s^2]
+``~/wind``               geometry_msgs/Vector3Stamped           in: wind velocity [m/s]
+                                                                (``air.enabled``)
 ``~/obstacles``          visualization_msgs/MarkerArray         in: add / move / delete
 ``~/obstacle_markers``   visualization_msgs/MarkerArray         out: the obstacles, ~1 Hz
 ``~/contact/<name>``     geometry_msgs/WrenchStamped            out, every tick: what the
@@ -64,6 +66,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..core import warmup
+from ..core.air import Air
 from ..core.contact import mesh_distance_field
 from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
@@ -71,10 +74,10 @@ from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, Simu
 from . import commands
 from .conversions import colormap, mesh_marker_array, percentile, point_cloud, shape_mesh
 from .pacing import Pacer, ThreadTuner
-from .params import (check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
+from .params import (AIR_KEYS, check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
                      MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
                      obstacle_geometry, PARAMETERS, params_files, pin_set, pinned_indices,
-                     RUNTIME_FLOATS, unknown_parameters, vec3)
+                     RUNTIME_FLOATS, unknown_parameters, vec3, wind as checked_wind)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
 
@@ -139,6 +142,9 @@ class ClothNode(Node):
             raise ConfigError(str(exc)) from None
         check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
         gravity = vec3(p['gravity'], 'gravity')
+        self._max_wind = p['max_wind']
+        self._steady_wind = checked_wind(p['air.wind'], self._max_wind)
+        air = self._air(bool(p['air.enabled']), {k: p['air.' + k] for k in AIR_KEYS})
         pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
         check_dt(p['dt'])
         t0 = time.perf_counter()
@@ -164,6 +170,8 @@ class ClothNode(Node):
         if not self.observe_only:
             mesh_distance_field(*warmup.TETRAHEDRON, 0.25, 0.1)
         self.sim.gravity = gravity
+        self.sim.air = air
+        self.sim.wind = self._steady_wind
         if len(pins):
             self.sim.pin(pins)
         self.frame_id = p['frame_id']
@@ -179,8 +187,9 @@ class ClothNode(Node):
         self._status_period = p['status_period']
         self._forces: Dict[str, Optional[_Force]] = {'vertex': None, 'point': None}
         self._field: Optional[Tuple[np.ndarray, float]] = None
+        self._wind: Optional[Tuple[np.ndarray, float]] = None     # ~/wind: (v, received)
         self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0,
-                         'obstacles': 0, 'handles': 0}
+                         'wind': 0, 'obstacles': 0, 'handles': 0}
         self.paused = False
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
@@ -218,6 +227,7 @@ class ClothNode(Node):
                 self._sized('point_forces', Float64MultiArray, commands.MAX_FORCE_BYTES,
                             self.on_point_forces), 10, raw=True)
             self.create_subscription(Vector3Stamped, '~/force_field', self.on_force_field, 10)
+            self.create_subscription(Vector3Stamped, '~/wind', self.on_wind, 10)
             self.create_subscription(
                 MarkerArray, '~/obstacles',
                 self._sized('obstacles', MarkerArray, MAX_OBSTACLE_BYTES, self.on_obstacles),
@@ -658,6 +668,29 @@ class ClothNode(Node):
         self._field = (v, time.monotonic())
         self.sim.force_field = v
 
+    def on_wind(self, msg: Vector3Stamped):
+        """Wind velocity [m/s] in frame_id, until it lapses (force_timeout; then back to
+        air.wind); refused while air.enabled is false, since it would move nothing."""
+        try:
+            if self.sim.air is None:
+                raise commands.CommandError('air.enabled is false: wind acts only on a cloth '
+                                            'in air')
+            v = commands.wind(msg, self.frame_id, self._max_wind)
+        except commands.CommandError as exc:
+            self._reject('wind', str(exc))
+            return
+        self._wind = (v, time.monotonic())
+        self.sim.wind = v
+
+    @staticmethod
+    def _air(enabled: bool, coefficients: dict) -> Optional[Air]:
+        """The simulator's air from the air.* parameters (None: off), else ConfigError."""
+        try:
+            air = Air(**coefficients)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        return air if enabled else None
+
     def _push_forces(self):
         parts = [f for f in self._forces.values() if f is not None]
         if parts:
@@ -688,6 +721,10 @@ class ClothNode(Node):
             self._field = None
             self.sim.force_field = (0.0, 0.0, 0.0)
             self.get_logger().info('force field lapsed')
+        if self._wind is not None and now - self._wind[1] > self._force_timeout:
+            self._wind = None
+            self.sim.wind = self._steady_wind
+            self.get_logger().info('wind lapsed: back to air.wind')
 
     # ------------------------------------------------------------------ services
     def on_reset(self, request, response):
@@ -725,7 +762,10 @@ class ClothNode(Node):
     def validate_parameters(self, params: List[Parameter]) -> SetParametersResult:
         """Only validates; :meth:`apply_parameters` applies accepted values."""
         mat = {k: getattr(self.sim.material, k) for k in MATERIAL_KEYS}
+        air = {k: getattr(self.sim.air or Air(), k) for k in AIR_KEYS}
         dt = self.sim.dt
+        max_wind = next((prm.value for prm in params if prm.name == 'max_wind'),
+                        self._max_wind)
         for prm in params:
             name, val = prm.name, prm.value
             if self.observe_only and name not in OBSERVER_RUNTIME:
@@ -748,6 +788,16 @@ class ClothNode(Node):
                     vec3(val, 'gravity')
                 except ConfigError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
+            elif name in ('air.' + k for k in AIR_KEYS):
+                if not isinstance(val, float):
+                    return SetParametersResult(successful=False,
+                                               reason=f'{name} must be a float')
+                air[name.split('.', 1)[1]] = val
+            elif name == 'air.wind':
+                try:
+                    checked_wind(val, max_wind if isinstance(max_wind, float) else math.inf)
+                except ConfigError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
             elif name == 'coloring' and val not in COLORINGS:
                 return SetParametersResult(successful=False,
                                            reason=f'coloring must be one of {COLORINGS}')
@@ -767,6 +817,7 @@ class ClothNode(Node):
                                                reason=f'{name} must be a non-negative float')
         try:
             material = Material(**mat)
+            Air(**air)
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         if material != self.sim.material or dt != self.sim.dt:
@@ -780,11 +831,20 @@ class ClothNode(Node):
     def apply_parameters(self, params: List[Parameter]):
         mat = {k: getattr(self.sim.material, k) for k in MATERIAL_KEYS}
         changed_material = False
+        changed_air = False
         for prm in params:
             name, val = prm.name, prm.value
             if name.startswith('material.'):
                 mat[name.split('.', 1)[1]] = val
                 changed_material = True
+            elif name.startswith('air.') and name != 'air.wind':
+                changed_air = True
+            elif name == 'air.wind':
+                self._steady_wind = np.array(val, dtype=np.float64)
+                if self._wind is None:
+                    self.sim.wind = self._steady_wind
+            elif name == 'max_wind':
+                self._max_wind = val
             elif name == 'dt':
                 self.sim.dt = val
             elif name == 'gravity':
@@ -807,6 +867,13 @@ class ClothNode(Node):
                 self._max_handle_speed = val
         if changed_material:
             self.sim.material = Material(**mat)
+        if changed_air:
+            self.sim.air = self._air(self.get_parameter('air.enabled').value,
+                                     {k: self.get_parameter('air.' + k).value
+                                      for k in AIR_KEYS})
+            if self.sim.air is None and self._wind is not None:
+                self._wind = None
+                self.sim.wind = self._steady_wind
         self._dirty = True
 
     # ------------------------------------------------------------------ the loop
@@ -978,7 +1045,9 @@ class ClothNode(Node):
                 'dt_over_critical': float(self.sim.dt / crit),
                 'vertices': self.mesh.n_vertices, 'faces': self.mesh.n_faces,
                 'sim_time': float(self.sim.time), 'paused': self.paused,
-                'rejected_total': rej, 'obstacles': len(self.sim.obstacles)}
+                'rejected_total': rej, 'obstacles': len(self.sim.obstacles),
+                'air': self.sim.air is not None,
+                'wind_speed': float(np.linalg.norm(self.sim.wind))}
         if self.sim.obstacles:
             cs = self.sim.contact_state()
             vals['contacts'] = cs['contacts']

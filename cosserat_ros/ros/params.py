@@ -16,7 +16,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from ..core.mesh import GRID_PATTERNS
 from ..core.solvers.explicit import DIVERGENCE_METHODS
 
-__all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'pin_set',
+__all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'AIR_KEYS',
+           'pin_set', 'wind',
            'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS',
            'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS', 'MIN_DT', 'OBSERVER_RUNTIME',
            'unknown_parameters', 'params_files', 'node_sections']
@@ -25,8 +26,11 @@ COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
             'right_edge', 'boundary')
 MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
+#: the coefficients of the air, air.<key> (core.air.Air's fields)
+AIR_KEYS = ('density', 'drag', 'lift')
 #: run-time parameters that must be non-negative floats
-RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period')
+RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period',
+                  'max_wind')
 #: the run-time parameters an ``observe_only`` node still lets change (they touch only how
 #: it draws and logs, not the physics or what it accepts)
 OBSERVER_RUNTIME = ('coloring', 'wireframe', 'status_period')
@@ -89,6 +93,16 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                               'the rows and topics that load the vertex', fp=_fp(0.0, 1e9))),
     'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
                                       fp=_fp(0.0, 1e9))),
+    'air.enabled': (False, _desc('Aerodynamic drag and lift on every triangle from its '
+                                 'velocity relative to the wind (air.wind, ~/wind)')),
+    'air.density': (1.225, _desc('Air density [kg/m^3] (sea level)', fp=_fp(0.0, 100.0))),
+    'air.drag': (1.17, _desc('Drag coefficient C_D [-] (a flat plate: 1.17)',
+                             fp=_fp(0.0, 100.0))),
+    'air.lift': (0.0, _desc('Lift coefficient C_L [-]', fp=_fp(0.0, 100.0))),
+    'air.wind': ([0.0, 0.0, 0.0], _desc('Steady wind [m/s], 3 values in frame_id; ~/wind '
+                                        'overrides it until the message lapses')),
+    'max_wind': (50.0, _desc('Largest accepted wind speed [m/s] (air.wind and ~/wind)',
+                             fp=_fp(0.0, 1e4))),
     'coloring': ('energy', _desc('Mesh colouring: ' + ', '.join(COLORINGS))),
     'wireframe': (False, _desc('Publish a LINE_LIST wireframe too')),
     'status_period': (1.0, _desc('Seconds between one-line status logs (0 = off)',
@@ -166,6 +180,15 @@ def vec3(value, name: str) -> np.ndarray:
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ConfigError(f'{name} must be 3 finite numbers, got {list(value)!r}')
     return arr
+
+
+def wind(value, max_wind: float, name: str = 'air.wind') -> np.ndarray:
+    """A wind velocity [m/s] no faster than ``max_wind``, else ConfigError."""
+    w = vec3(value, name)
+    speed = float(np.linalg.norm(w))
+    if speed > max_wind:
+        raise ConfigError(f'{name}: {speed:.4g} m/s is above max_wind {max_wind:.4g} m/s')
+    return w
 
 
 def check_dt(dt: float, critical: float = math.inf) -> float:
