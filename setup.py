@@ -33,6 +33,7 @@ setup(
             'record = cosserat_ros.entry:record',
             'render = cosserat_ros.entry:render',
             'fold_demo = cosserat_ros.entry:fold_demo',
+            'flag_demo = cosserat_ros.entry:flag_demo',
         ],
     },
 )

@@ -7,7 +7,7 @@ import importlib
 import signal
 import sys
 
-__all__ = ['cloth_node', 'record', 'render', 'fold_demo']
+__all__ = ['cloth_node', 'record', 'render', 'fold_demo', 'flag_demo']
 
 
 def _interrupt(signum, frame):
@@ -56,3 +56,7 @@ def render() -> int:
 
 def fold_demo() -> int:
     return _run('fold_demo', 'cosserat_ros.tools.fold_demo')
+
+
+def flag_demo() -> int:
+    return _run('flag_demo', 'cosserat_ros.tools.flag_demo')

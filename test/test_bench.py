@@ -2,6 +2,7 @@
 import math
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
 
 from cosserat_ros.tools import bench, peer_mujoco as peer
@@ -86,3 +87,15 @@ def test_peer_contact_scene_lies_on_the_ground():
     run = peer.contact_stepper(10, 3e-4, True)
     run(20)
     assert not run.bad() and run.contacts() > 0
+
+
+def test_air_scene_is_the_flag_with_and_without_air():
+    from cosserat_ros.tools.bench import air_scene
+    on, off = air_scene(6, True), air_scene(6, False)
+    for sim in (on, off):
+        assert np.ptp(sim.mesh.vertices[:, 1]) == 0.0          # upright, in the xz plane
+        assert sim.pinned.sum() == 7 and sim.material.density == 0.113
+    assert on.air is not None and off.air is None
+    c = on.control
+    assert (c.f_applied - c.f_external)[:, 0].sum() > 0        # the wind pushes downwind
+    assert np.array_equal(off.control.f_applied, off.control.f_external)

@@ -22,6 +22,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from cosserat_ros.ros import node as node_module
 from cosserat_ros.ros import pacing
 from cosserat_ros.ros.node import ClothNode, ConfigError, percentile, pin_set
+from cosserat_ros.simulator import Material
 
 N = 8
 OVERRIDES = {'mesh.nx': N, 'mesh.ny': N, 'publish_rate': 50.0, 'status_period': 0.0,
@@ -252,6 +253,23 @@ def test_wind_blows_the_cloth_in_air_bad_wind_is_refused_and_it_lapses(h):
     assert h.node.diverged is None
 
 
+def test_a_material_preset_with_explicit_overrides():
+    """material.preset gives zeta, xi, phi and density; a material.* given too wins, the
+    damping is material.damping's, and the parameters then read what the cloth has."""
+    h = Harness(**{'material.preset': 'denim', 'material.xi': 3e-6})
+    try:
+        m = h.node.sim.material
+        denim = Material.preset('denim')
+        assert (m.zeta, m.density, m.phi) == (denim.zeta, denim.density, 0.0)
+        assert m.xi == 3e-6 and m.damping == 0.1
+        got = {k: h.node.get_parameter('material.' + k).value
+               for k in ('zeta', 'xi', 'phi', 'density', 'damping')}
+        assert got == {'zeta': m.zeta, 'xi': 3e-6, 'phi': 0.0, 'density': m.density,
+                       'damping': 0.1}
+    finally:
+        h.close()
+
+
 def test_divergence_pauses_reports_and_reset_recovers(h):
     h.node.sim.dt = 20 * h.node.sim.critical_dt()     # behind the validator's back
     h.node.sim.set_velocities(np.random.default_rng(0).standard_normal(
@@ -313,6 +331,9 @@ def test_pause_service(h):
     ({'materal.zeta': 50.0, 'dtt': 1e-4}, 'unknown parameters dtt, materal.zeta'),
     ({'handles.names': ['left'], 'handles.right.radius': 0.1}, 'handles.right.radius'),
     ({'pinned.indices': [10_000]}, 'pinned.indices'),
+    ({'material.preset': 'corduroy'}, 'preset must be one of'),
+    ({'air.wind': [0.0, 0.0, 80.0]}, 'max_wind'),
+    ({'air.drag': -1.0}, 'air.drag'),
 ])
 def test_bad_startup_parameters_are_refused(params, match):
     ctx = Context()

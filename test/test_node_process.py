@@ -398,3 +398,21 @@ def test_fold_demo_folds_the_cloth_through_the_ros_interfaces():
         out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert 'Traceback' not in err + out
+
+
+def test_flag_demo_flies_the_flag_in_gusts_through_the_wind_topic():
+    # config/flag.yaml (air on, a steady 6 m/s wind) in one process, flag_demo streaming
+    # gusts on ~/wind and judging the flight from ~/points in another
+    share = get_package_share_directory('cosserat_ros')
+    proc = start(os.path.join(share, 'config', 'flag.yaml'))
+    try:
+        demo = subprocess.run(ros2_run('cosserat_ros', 'flag_demo', '--duration', '3'),
+                              capture_output=True, text=True, timeout=180)
+        assert demo.returncode == 0, demo.stdout + demo.stderr
+        assert 'flew' in demo.stdout and 'NOT' not in demo.stdout
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out
+    assert 'rejected' not in err                  # every gust was accepted

@@ -39,8 +39,9 @@ pressure of that plate already has the cross-flow part of an inclined plate's fo
 shot). Air density at sea level and 15 C: 1.225 kg/m^3 (ISO 2533 standard atmosphere).
 
 Layout: ``Control.air`` (:data:`AIR_WIDTH`,) = (on, 1/2 rho C_D, 1/2 rho C_L, w_x, w_y,
-w_z); each step, before the update, :func:`air_range` writes ``f_applied = f_external +
-f_air`` for its vertices. With air off ``Control.f_applied`` is ``Control.f_external``
+w_z); each step, before the update, :func:`air_faces` writes each face's force to
+``Control.air_face`` (m,3) and :func:`air_gather` each vertex's ``f_applied = f_external
++ f_air`` (a third of its faces'): one evaluation per face. With air off ``Control.f_applied`` is ``Control.f_external``
 and no step computes anything here. This module imports no ROS package.
 """
 from __future__ import annotations
@@ -53,7 +54,7 @@ import numpy as np
 
 from .compiled import kernel
 
-__all__ = ['Air', 'AIR_WIDTH', 'air_row', 'air_range', 'air_pass', 'air_forces',
+__all__ = ['Air', 'AIR_WIDTH', 'air_row', 'air_faces', 'air_gather', 'air_pass', 'air_forces',
            'face_air_force']
 
 #: columns of ``Control.air``
@@ -130,25 +131,36 @@ def face_air_force(x, v, a, b, c, air):
             kd * n2 + kl * (n2 - cs * u2))
 
 
-@kernel()
-def air_range(i0, i1, x, v, corners, vf_ptr, vf_face, control):
-    """``f_applied = f_external + f_air`` for vertices i0..i1-1: a third of the force of
-    each incident triangle (recomputed per corner, so that no two threads write one row)."""
+@kernel(inline='always')
+def air_faces(t0, t1, x, v, corners, control):
+    """The air force of faces t0..t1-1 (:func:`face_air_force`) into
+    ``Control.air_face``."""
     air = control.air
+    out = control.air_face
+    for t in range(t0, t1):
+        f0, f1, f2 = face_air_force(x, v, corners[t, 0], corners[t, 1], corners[t, 2], air)
+        out[t, 0] = f0
+        out[t, 1] = f1
+        out[t, 2] = f2
+
+
+@kernel(inline='always')
+def air_gather(i0, i1, vf_ptr, vf_face, control):
+    """``f_applied = f_external + f_air`` for vertices i0..i1-1: a third of the force of
+    each incident face (``Control.air_face``)."""
     fe = control.f_external
     fa = control.f_applied
+    af = control.air_face
+    third = 1.0 / 3.0
     for i in range(i0, i1):
         s0 = 0.0
         s1 = 0.0
         s2 = 0.0
         for q in range(vf_ptr[i], vf_ptr[i + 1]):
             t = vf_face[q]
-            f0, f1, f2 = face_air_force(x, v, corners[t, 0], corners[t, 1], corners[t, 2],
-                                        air)
-            s0 += f0
-            s1 += f1
-            s2 += f2
-        third = 1.0 / 3.0
+            s0 += af[t, 0]
+            s1 += af[t, 1]
+            s2 += af[t, 2]
         fa[i, 0] = fe[i, 0] + third * s0
         fa[i, 1] = fe[i, 1] + third * s1
         fa[i, 2] = fe[i, 2] + third * s2
@@ -156,15 +168,21 @@ def air_range(i0, i1, x, v, corners, vf_ptr, vf_face, control):
 
 @kernel(parallel=True)
 def air_pass(x, v, corners, vf_ptr, vf_face, control, nchunks):
-    """:func:`air_range` over all vertices in ``nchunks`` parallel chunks (one call per
-    step, before the update; a no-op with air off)."""
+    """The air force of every face, then every vertex's ``f_applied``, each in
+    ``nchunks`` parallel chunks (one call per step, before the update; a no-op with air
+    off)."""
     if control.air[0] == 0.0:
         return
+    m = corners.shape[0]
+    fsize = (m + nchunks - 1) // nchunks
+    for c in nb.prange(nchunks):
+        air_faces(nb.int64(c * fsize), nb.int64(min(m, (c + 1) * fsize)), x, v, corners,
+                  control)
     n = x.shape[0]
     size = (n + nchunks - 1) // nchunks
     for c in nb.prange(nchunks):
-        air_range(nb.int64(c * size), nb.int64(min(n, (c + 1) * size)), x, v, corners,
-                  vf_ptr, vf_face, control)
+        air_gather(nb.int64(c * size), nb.int64(min(n, (c + 1) * size)), vf_ptr, vf_face,
+                   control)
 
 
 def air_forces(model, x: np.ndarray, v: np.ndarray, air, wind) -> np.ndarray:

@@ -33,8 +33,10 @@ damping     rho      kg/(m^2 s)    velocity damping coefficient of Eq. 1
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 import math
+import warnings
 
 import numpy as np
 
@@ -103,6 +105,67 @@ class Material:
     def wave_speed(self) -> float:
         """Membrane P-wave speed c = sqrt((lambda_2 + 2 mu_2) / mu) = sqrt(6 zeta / mu) [m/s]."""
         return math.sqrt(6.0 * self.zeta / self.density)
+
+    @classmethod
+    def from_fabric(cls, areal_density: float, tensile_stiffness: float,
+                    poisson_ratio: float, bending_rigidity: float,
+                    damping: float = 0.0) -> 'Material':
+        """Material from a fabric's datasheet (derivation: :mod:`.fabrics`)::
+
+            zeta = 3 E h / 16,   xi = G / 6,   phi = 0,   density = mu
+
+        ``areal_density`` mu [kg/m^2], ``tensile_stiffness`` E h [N/m] (uniaxial, per unit
+        width), ``poisson_ratio`` nu [-] (0 <= nu < 1; the model's is 1/3 whatever the
+        constants: a ``UserWarning`` says so when nu is further than 0.05 from it),
+        ``bending_rigidity`` G [N m] (flexural rigidity per unit width, ASTM D1388 or
+        KES-F B), ``damping`` [kg/(m^2 s)]. ``ValueError`` names a bad value."""
+        from .fabrics import NU_TOLERANCE
+        vals = {'areal_density': areal_density, 'tensile_stiffness': tensile_stiffness,
+                'poisson_ratio': poisson_ratio, 'bending_rigidity': bending_rigidity}
+        for name, val in vals.items():
+            if isinstance(val, bool) or not isinstance(val, (int, float, np.floating,
+                                                             np.integer)):
+                raise ValueError(f'{name} must be a number, got {val!r}')
+            if not math.isfinite(val) or val < 0:
+                raise ValueError(f'{name} must be finite and not negative, got {val!r}')
+        for name in ('areal_density', 'tensile_stiffness', 'bending_rigidity'):
+            if vals[name] == 0:
+                raise ValueError(f'{name} must be positive, got 0')
+        if poisson_ratio >= 1.0:
+            raise ValueError(f'poisson_ratio must be below 1, got {poisson_ratio!r}')
+        if abs(poisson_ratio - 1.0 / 3.0) > NU_TOLERANCE:
+            warnings.warn(f'poisson_ratio {poisson_ratio:g}: the Cosserat law of the seed '
+                          'has nu = 1/3 for every choice of constants; E h and G are '
+                          'matched, the lateral contraction stays 1/3 and the shear '
+                          f'stiffness is 3 E h / 8 instead of E h / (2 (1 + nu))',
+                          UserWarning, stacklevel=2)
+        return cls(zeta=3.0 * tensile_stiffness / 16.0, xi=bending_rigidity / 6.0, phi=0.0,
+                   density=areal_density, damping=damping)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> 'Material':
+        """A measured fabric by name (:data:`.fabrics.PRESETS`: ``denim``,
+        ``cotton_twill``, ``jersey``, ``rib_knit``, ``polyester``, ``fleece``,
+        ``swimwear``; sources and conversions in :mod:`.fabrics`) through
+        :meth:`from_fabric`. ``overrides`` replace any of the resulting ``zeta``, ``xi``,
+        ``phi``, ``density``, ``damping`` (default damping 0)."""
+        from .fabrics import PRESETS
+        if name not in PRESETS:
+            raise ValueError(f'material preset must be one of {", ".join(PRESETS)}, '
+                             f'got {name!r}')
+        bad = sorted(set(overrides) - {'zeta', 'xi', 'phi', 'density', 'damping'})
+        if bad:
+            raise ValueError(f'preset overrides must be material constants, got {bad}')
+        f = PRESETS[name]
+        base = cls.from_fabric(f.areal_density, f.tensile_stiffness, 1.0 / 3.0,
+                               f.bending_rigidity)
+        return dataclasses.replace(base, **overrides)
+
+    @property
+    def bending_rigidity(self) -> float:
+        """Flexural rigidity per unit width G [N m] of a strip in cylindrical bending:
+        D = 6 xi (:mod:`.fabrics`)."""
+        return 6.0 * self.xi
 
     @classmethod
     def from_plate(cls, youngs_2d: float, bending: float, density: float,

@@ -315,6 +315,46 @@ def grid_mesh(nx: int, ny: int, width: float = 1.0, height: float = 1.0,
     return ClothMesh(pts, faces)
 
 
+def disc_mesh(radius: float = 0.15, rings: int = 20) -> ClothMesh:
+    """A flat disc of ``radius`` [m] in the z = 0 plane, centred on the origin: the centre
+    and ``rings`` concentric rings of 6 k vertices (k = 1..rings) at radius ``k radius /
+    rings``, consecutive rings zipped into triangles by angle (interior valence 6 on the
+    ring's six spokes, 5-7 in between); counter-clockwise seen from +z. The specimen of
+    the Cusick drape test (``core/scenarios.py``)."""
+    if int(rings) != rings or rings < 1:
+        raise ValueError(f'rings must be a positive integer, got {rings!r}')
+    if not np.isfinite(radius) or radius <= 0:
+        raise ValueError(f'radius must be a positive finite length [m], got {radius!r}')
+    rings = int(rings)
+    pts = [np.zeros(3)]
+    start = [0]
+    for k in range(1, rings + 1):
+        a = 2.0 * np.pi * np.arange(6 * k) / (6 * k)
+        r = radius * k / rings
+        start.append(len(pts))
+        pts += list(np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)], axis=1))
+    faces = [[0, 1 + j, 1 + (j + 1) % 6] for j in range(6)]
+    for k in range(1, rings):
+        na, nb = 6 * k, 6 * (k + 1)
+        a0, b0 = start[k], start[k + 1]
+        i = j = 0
+        while i < na or j < nb:
+            # advance on the ring whose next vertex comes first by angle
+            if j >= nb or (i < na and (i + 1) / na < (j + 1) / nb):
+                faces.append([a0 + i % na, b0 + j % nb, a0 + (i + 1) % na])
+                i += 1
+            else:
+                faces.append([a0 + i % na, b0 + j % nb, b0 + (j + 1) % nb])
+                j += 1
+    pts = np.array(pts)
+    faces = np.array(faces, dtype=np.int64)
+    e1 = pts[faces[:, 1]] - pts[faces[:, 0]]
+    e2 = pts[faces[:, 2]] - pts[faces[:, 0]]
+    flip = (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    return ClothMesh(pts, faces)
+
+
 def _in_circle(a, b, c, d):
     """True where d lies strictly inside the circumcircle of the CCW triangle (a, b, c)."""
     ad, bd, cd = a[:, :2] - d[:, :2], b[:, :2] - d[:, :2], c[:, :2] - d[:, :2]

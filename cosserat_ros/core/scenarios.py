@@ -17,11 +17,13 @@ wider on each side (side ``a N / (N - 1)`` for N segments).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Dict, Optional
 
 import numpy as np
 
+from .compiled import kernel
 from .mesh import grid_mesh
 from .simulator import ClothSimulator, Material
 
@@ -162,3 +164,229 @@ def hanging_cloth(n: int = 20, pattern: str = 'regular', duration: float = 4.0,
     sim.gravity = (0.0, 0.0, -9.81)
     relax(sim, duration)
     return sim
+
+
+# ---------------------------------------------------------------- ASTM D1388 cantilever
+#: ASTM D1388 option A: the strip is pushed over the ledge until the line from the ledge
+#: edge to its tip falls this far below the horizontal
+D1388_ANGLE = math.radians(41.5)
+#: the standard's specimen width [m]
+D1388_WIDTH = 0.025
+
+
+@kernel()
+def _elastica(lam, k0, nsteps):
+    """The heavy elastica theta'' = -lam (1 - s) cos(theta) on s in [0, 1] from
+    theta(0) = 0, theta'(0) = k0 (RK4): returns (theta'(1), x(1), z(1)) of the unit strip
+    (theta the slope below the horizontal, z down)."""
+    h = 1.0 / nsteps
+    th = 0.0
+    k = k0
+    x = 0.0
+    z = 0.0
+    for i in range(nsteps):
+        s = i * h
+        a1, b1 = k, -lam * (1.0 - s) * math.cos(th)
+        a2, b2 = k + 0.5 * h * b1, -lam * (1.0 - s - 0.5 * h) * math.cos(th + 0.5 * h * a1)
+        a3, b3 = k + 0.5 * h * b2, -lam * (1.0 - s - 0.5 * h) * math.cos(th + 0.5 * h * a2)
+        a4, b4 = k + h * b3, -lam * (1.0 - s - h) * math.cos(th + h * a3)
+        # x' = cos(theta), z' = sin(theta): Simpson with the stage slopes
+        t2 = th + 0.5 * h * (a1 + a2) * 0.5
+        t4 = th + h * (a1 + 2 * a2 + 2 * a3 + a4) / 6.0
+        x += h / 6.0 * (math.cos(th) + 4.0 * math.cos(t2) + math.cos(t4))
+        z += h / 6.0 * (math.sin(th) + 4.0 * math.sin(t2) + math.sin(t4))
+        th = t4
+        k += h * (b1 + 2 * b2 + 2 * b3 + b4) / 6.0
+    return k, x, z
+
+
+def elastica_chord_angle(lam: float, nsteps: int = 2000) -> float:
+    """The angle [rad] below the horizontal of the chord from the clamp to the tip of a
+    cantilever of length L, rigidity G per unit width, under its weight w per unit area
+    (``lam = w L^3 / G``), at large deflection: the heavy elastica ``G theta'' = -w (L -
+    s) cos theta``, theta(0) = 0, theta'(L) = 0, shot on theta'(0) in [0, lam / 2] (the
+    small-deflection value) by bisection."""
+    lo, hi = 0.0, 0.5 * lam
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if _elastica(lam, mid, nsteps)[0] < 0.0:
+            lo = mid
+        else:
+            hi = mid
+    _, x, z = _elastica(lam, 0.5 * (lo + hi), nsteps)
+    return math.atan2(z, x)
+
+
+def elastica_load(angle: float = D1388_ANGLE) -> float:
+    """``lam = w L^3 / G`` at which the heavy cantilever's chord falls ``angle`` (the
+    inverse of :func:`elastica_chord_angle`, by bisection: the angle grows with lam).
+    Peirce's formula ``G = w L^3 cos(angle / 2) / (8 tan(angle))`` is the small-deflection
+    approximation, and the standard's ``G = w (L / 2)^3`` uses lam = 8."""
+    lo, hi = 1e-6, 1e4
+    for _ in range(80):
+        mid = math.sqrt(lo * hi)
+        if elastica_chord_angle(mid) < angle:
+            lo = mid
+        else:
+            hi = mid
+    return math.sqrt(lo * hi)
+
+
+def bending_length_test(material: Material, n_along: int = 40,
+                        width: float = D1388_WIDTH, pattern: str = 'regular',
+                        g: float = 9.81) -> Dict[str, float]:
+    """ASTM D1388 option A on the simulator: a strip of ``width`` (the standard's 25 mm)
+    overhanging a ledge, under its own weight, run to rest; from the angle of its chord,
+    the flexural rigidity it shows.
+
+    The part of the strip on the platform is held flat by its weight, so the ledge is a
+    clamp: two columns of vertices pinned, the clamp their mid-line (as
+    :func:`cantilever`), ``n_along`` segments over the overhang. The overhang L is the one
+    at which the exact elastica of the material's rigidity ``G = 6 xi`` falls 41.5 degrees
+    (``L = (lam* G / w)^(1/3)``, ``lam* = elastica_load()``), i.e. where the standard stops
+    pushing. Measured: the chord angle ``beta`` from the ledge edge to the tip (the free
+    edge's mean position). Recovered: ``G_exact = w L^3 / lam(beta)`` (the elastica
+    inverted at the measured angle); the standard's reading ``G_d1388 = w c^3`` with the
+    bending length ``c = L* / 2``, ``L*`` the overhang at which this strip falls 41.5
+    degrees (``L* = L (lam* / lam(beta))^(1/3)``, since the angle depends on ``w L^3 / G``
+    only), so ``G_d1388 / G_exact = lam* / 8``: the error of the standard's formula."""
+    G = material.bending_rigidity
+    w = material.density * g
+    lam_star = elastica_load(D1388_ANGLE)
+    L = (lam_star * G / w) ** (1.0 / 3.0)
+    h = L / (n_along - 0.5)
+    n_across = max(2, int(round(width / h)))
+    total = n_along * h
+    mesh = grid_mesh(n_along, n_across, width=total, height=width, pattern=pattern, seed=2)
+    X = mesh.vertices
+    omega1 = 3.516 / L ** 2 * math.sqrt(G / material.density)
+    mat = dataclasses.replace(material, damping=2.0 * omega1 * material.density)
+    sim = ClothSimulator(mesh, mat, dt=1e-6, check_dt=False)
+    sim.dt = 0.9 * sim.critical_dt()
+    clamp_x = -0.5 * total + 0.5 * h
+    sim.pin(X[:, 0] <= -0.5 * total + 1.01 * h)
+    sim.gravity = (0.0, 0.0, -g)
+    tip = X[:, 0] >= 0.5 * total - 1e-9
+
+    def chord():
+        p = sim.positions[tip].mean(axis=0)
+        return math.atan2(-p[2], p[0] - clamp_x)
+
+    beta, t = chord(), 0.0
+    while t < 60.0 / omega1:
+        relax(sim, 2.0 / omega1)
+        t += 2.0 / omega1
+        b = chord()
+        if abs(b - beta) < 1e-5 and t > 8.0 / omega1:
+            beta = b
+            break
+        beta = b
+    lam = elastica_load(beta)
+    g_exact = w * L ** 3 / lam
+    return {'overhang': L, 'beta': beta, 'lam': lam, 'G': G, 'G_exact': g_exact,
+            'error': g_exact / G - 1.0, 'G_d1388': g_exact * lam_star / 8.0,
+            'bending_length': 0.5 * L * (lam_star / lam) ** (1.0 / 3.0),
+            'lam_star': lam_star, 'n_across': n_across, 'dt': sim.dt, 'time': t}
+
+
+# ---------------------------------------------------------------- Cusick drape
+#: the Cusick drape tester (BS 5058 / ISO 9073-9): a 30 cm specimen on an 18 cm support
+CUSICK_SPECIMEN_RADIUS = 0.15
+CUSICK_SUPPORT_RADIUS = 0.09
+
+
+def shadow(points2: np.ndarray, faces: np.ndarray, pixel: float = 1e-3):
+    """The area [m^2] of the union of the triangles (points2 (n,2) [m], faces (m,3)) seen
+    from above, on a raster of ``pixel`` [m] (a pixel counts when its centre is in a
+    triangle), and the raster itself (mask, x0, y0) for the outline."""
+    lo = points2.min(axis=0) - pixel
+    hi = points2.max(axis=0) + pixel
+    nx, ny = (np.ceil((hi - lo) / pixel)).astype(int)
+    mask = np.zeros((ny, nx), dtype=bool)
+    a, b, c = points2[faces[:, 0]], points2[faces[:, 1]], points2[faces[:, 2]]
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    tlo = np.floor((np.minimum(np.minimum(a, b), c) - lo) / pixel).astype(int)
+    thi = np.ceil((np.maximum(np.maximum(a, b), c) - lo) / pixel).astype(int)
+    for t in np.flatnonzero(np.abs(det) > 0):
+        i0, j0 = tlo[t]
+        i1, j1 = thi[t]
+        px = lo[0] + (np.arange(i0, i1) + 0.5) * pixel
+        py = lo[1] + (np.arange(j0, j1) + 0.5) * pixel
+        X, Y = np.meshgrid(px, py)
+        l1 = ((b[t, 0] - X) * (c[t, 1] - Y) - (c[t, 0] - X) * (b[t, 1] - Y)) / det[t]
+        l2 = ((c[t, 0] - X) * (a[t, 1] - Y) - (a[t, 0] - X) * (c[t, 1] - Y)) / det[t]
+        inside = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
+        mask[j0:j1, i0:i1] |= inside
+    return float(mask.sum()) * pixel ** 2, (mask, lo[0], lo[1], pixel)
+
+
+def count_folds(raster, bins: int = 360, smooth_deg: float = 10.0,
+                prominence: float = 0.2, relief: float = 0.01) -> int:
+    """The number of folds (nodes) of a drape shadow: the maxima of its outline's radius
+    r(angle) about the centre (the largest shadow radius in each of ``bins`` sectors,
+    circularly smoothed over ``smooth_deg``) that rise above both neighbouring minima by
+    ``prominence`` of the outline's total range; none if that range is below twice
+    ``relief`` of the mean radius (a round shadow, a pixel's noise)."""
+    mask, x0, y0, pixel = raster
+    j, i = np.nonzero(mask)
+    x = x0 + (i + 0.5) * pixel
+    y = y0 + (j + 0.5) * pixel
+    ang = np.floor((np.arctan2(y, x) + np.pi) / (2 * np.pi) * bins).astype(int) % bins
+    r = np.zeros(bins)
+    np.maximum.at(r, ang, np.hypot(x, y))
+    k = max(1, int(round(smooth_deg / 360.0 * bins)))
+    r = np.convolve(np.concatenate([r[-k:], r, r[:k]]), np.ones(2 * k + 1) / (2 * k + 1),
+                    mode='same')[k:-k]
+    span = r.max() - r.min()
+    if span <= 0 or span < 2.0 * relief * r.mean():
+        return 0
+    # walk the circle from the global minimum: a fold is a rise and fall of > prominence
+    start = int(np.argmin(r))
+    seq = np.roll(r, -start)
+    folds, low, high, rising = 0, seq[0], seq[0], True
+    for val in seq[1:]:
+        if rising:
+            high = max(high, val)
+            if high - val > prominence * span and high - low > prominence * span:
+                folds += 1
+                rising, low = False, val
+        else:
+            low = min(low, val)
+            if val - low > prominence * span:
+                rising, high = True, val
+    return folds
+
+
+def drape_test(material: Material, rings: int = 25, duration: float = 3.0,
+               seed: int = 0, thickness: float = 1e-3) -> Dict[str, float]:
+    """The Cusick drape test on the simulator: a disc of radius 0.15 m (:func:`..mesh.
+    disc_mesh`, ``rings`` rings) laid centred on a support disc of radius 0.09 m (a
+    cylinder obstacle, contact thickness ``thickness``), released under gravity, run
+    ``duration`` seconds with damping near the skirt's pendulum rate and measured from
+    above: the drape coefficient ``DC = (A_shadow - A_support) / (A_specimen -
+    A_support)`` (1: stays flat, 0: hangs straight down) and the number of folds
+    (:func:`count_folds`). The specimen starts flat with 0.1 mm of random height noise,
+    which breaks the ring mesh's six-fold symmetry as a real specimen's irregularities
+    do."""
+    from .mesh import disc_mesh
+    mesh = disc_mesh(CUSICK_SPECIMEN_RADIUS, rings)
+    rate = math.sqrt(9.81 / (CUSICK_SPECIMEN_RADIUS - CUSICK_SUPPORT_RADIUS))
+    mat = dataclasses.replace(material, damping=rate * material.density)
+    sim = ClothSimulator(mesh, mat, dt=1e-6, check_dt=False)
+    sim.dt = 0.9 * sim.critical_dt()
+    sim.contact_thickness = thickness
+    sim.add_obstacle('cylinder', center=(0.0, 0.0, -0.05), radius=CUSICK_SUPPORT_RADIUS,
+                     half_length=0.05, friction=0.5, name='support')
+    x = mesh.vertices.copy()
+    x[:, 2] = thickness + 1e-4 * np.random.default_rng(seed).random(len(x))
+    sim.set_positions(x)
+    sim.gravity = (0.0, 0.0, -9.81)
+    relax(sim, duration)
+    p = sim.positions
+    area, raster = shadow(p[:, :2], mesh.faces)
+    a_d = math.pi * CUSICK_SUPPORT_RADIUS ** 2
+    a_s = math.pi * CUSICK_SPECIMEN_RADIUS ** 2
+    kinetic = sim.energy()['kinetic']
+    return {'dc': (area - a_d) / (a_s - a_d), 'folds': count_folds(raster),
+            'shadow_area': area, 'kinetic': kinetic, 'dt': sim.dt,
+            'lowest': float(p[:, 2].min()), 'sim': sim}

@@ -110,7 +110,7 @@ class ClothSimulator:
         self.solver = ExplicitSolver(self.model, divergence, simd)
         n = mesh.n_vertices
         self.state = State.at_rest(mesh.vertices)
-        self.control = Control.empty(n)
+        self.control = Control.empty(n, faces=mesh.n_faces)
         self._obstacles = ObstacleSet()
         self._handles = HandleSet()
         self._user_pins = np.zeros(n, dtype=bool)

@@ -18,6 +18,7 @@ field             shape / unit      meaning
                                     the air force when air is on (:mod:`.air` writes it
                                     before each update)
 ``Control.air`` (6,)                air on/off, its coefficients and the wind (:mod:`.air`)
+``Control.air_face`` (m,3) [N]      scratch of the step: each face's air force
 ``Control.gravity`` (3,) [m/s^2]    gravitational acceleration g
 ``Control.pinned`` (n,) bool        vertices whose motion is prescribed: pins and the
                                     vertices grasp handles hold (:mod:`.handles`)
@@ -69,6 +70,7 @@ class Control(NamedTuple):
     f_external: np.ndarray
     f_applied: np.ndarray
     air: np.ndarray
+    air_face: np.ndarray
     gravity: np.ndarray
     pinned: np.ndarray
     pin_velocity: np.ndarray
@@ -80,12 +82,15 @@ class Control(NamedTuple):
     contact: np.ndarray
 
     @classmethod
-    def empty(cls, n: int, thickness: float = 2e-3) -> 'Control':
+    def empty(cls, n: int, thickness: float = 2e-3, faces: int = 0) -> 'Control':
+        """No force, pin or obstacle on n vertices; room for the air force of ``faces``
+        faces (0: the controls of a step without air)."""
         from .air import AIR_WIDTH
         from .contact import C_WIDTH, WIDTH
         contact = np.zeros((n, C_WIDTH))
         contact[:, 3] = -1.0
-        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH), np.zeros(3), np.zeros(n, dtype=bool),
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH),
+                   np.zeros((faces, 3)), np.zeros(3), np.zeros(n, dtype=bool),
                    np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
                    np.array([float(thickness)]), contact)
 

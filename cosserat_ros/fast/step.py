@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core.compiled import kernel
 from ..core.solvers.update import advance_vertex, contact_list, contact_range
-from ..core.air import air_pass, air_range
+from ..core.air import air_faces, air_gather, air_pass
 from .lanes import vertex_chunk
 from .workshare import arrive, claim, split
 
@@ -270,16 +270,23 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
     sync[0] = 0
     sync[1] = nsteps
     air = control.air[0] != 0.0
+    per = 3 if air else 2                   # barriers per step
     asize = (x.shape[0] + nthr - 1) // nthr
+    fsize = (corners.shape[0] + nthr - 1) // nthr
     for t in nb.prange(nthr):
         for s in range(nsteps):
             if t == 0 and s > 0:
                 split(ushare, nuc)          # the others are in the vertex pass
             if air:
-                # this thread's slice of the air force: it reads x and v, which the last
-                # barrier left complete, and writes f_applied, which only the update reads
-                air_range(nb.int64(t * asize), nb.int64(min(x.shape[0], (t + 1) * asize)),
-                          x, v, faces.corners, vf_ptr, vf.face, control)
+                # this thread's slices of the air force (core/air.py): the faces' from x
+                # and v, which the last barrier left complete, then, after a barrier, the
+                # vertices' f_applied, which only the update reads
+                air_faces(nb.int64(t * fsize), nb.int64(min(corners.shape[0],
+                                                             (t + 1) * fsize)),
+                          x, v, corners, control)
+                arrive(sync, per * s + 1, nthr)
+                air_gather(nb.int64(t * asize), nb.int64(min(x.shape[0], (t + 1) * asize)),
+                           vf_ptr, vf_face, control)
             c, k = claim(share, t, nr, 0)
             while c >= 0:
                 vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr,
@@ -289,7 +296,7 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
                              fc_vert, t_dinv, t_area, zeta, fc_ptr, fc_tpl, fc_slot, fgrad,
                              coupled)
                 c, k = claim(share, t, nr, k)
-            arrive(sync, 2 * s + 1, nthr)
+            arrive(sync, per * s + per - 1, nthr)
             if t == 0:
                 split(share, nch)           # the others are in the update
             c, k = claim(ushare, t, nu, 0)
@@ -297,7 +304,7 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
                 _update_chunk(c, size, vf_ptr, vf_row, tr_ptr, tr_slot, frow, contrib, x, v,
                               force, control, coeff, dt, vmax2, part)
                 c, k = claim(ushare, t, nu, k)
-            arrive(sync, 2 * s + 2, nthr)
+            arrive(sync, per * s + per, nthr)
             bad = 0
             for c in range(nuc):
                 bad += int(part[c, 2])

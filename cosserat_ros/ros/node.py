@@ -136,10 +136,7 @@ class ClothNode(Node):
         self._check_parameter_names(p, sys.argv if argv is None else argv)
         self.observe_only = bool(p['observe_only'])
         self.mesh = self._build_mesh(p)
-        try:
-            material = Material(**{k: p['material.' + k] for k in MATERIAL_KEYS})
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
+        material = self._initial_material(p)
         check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
         gravity = vec3(p['gravity'], 'gravity')
         self._max_wind = p['max_wind']
@@ -681,6 +678,24 @@ class ClothNode(Node):
             return
         self._wind = (v, time.monotonic())
         self.sim.wind = v
+
+    def _initial_material(self, p: dict) -> Material:
+        """The material.* parameters, on top of material.preset when one is named: the
+        preset gives zeta, xi, phi and density, a material.* parameter given explicitly
+        (params file, command line) overrides it, and damping is always material.damping;
+        the parameters are then set to what the cloth gets. ConfigError if bad."""
+        name = p['material.preset']
+        try:
+            if not name:
+                return Material(**{k: p['material.' + k] for k in MATERIAL_KEYS})
+            given = {k: p['material.' + k] for k in MATERIAL_KEYS
+                     if 'material.' + k in self._parameter_overrides or k == 'damping'}
+            material = Material.preset(name, **given)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        self.set_parameters([Parameter('material.' + k, value=float(getattr(material, k)))
+                             for k in MATERIAL_KEYS])
+        return material
 
     @staticmethod
     def _air(enabled: bool, coefficients: dict) -> Optional[Air]:

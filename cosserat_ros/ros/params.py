@@ -13,6 +13,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
+from ..core.fabrics import PRESETS
 from ..core.mesh import GRID_PATTERNS
 from ..core.solvers.explicit import DIVERGENCE_METHODS
 
@@ -68,6 +69,10 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'mesh.pattern': ('regular', _desc('Grid triangulation: ' + ', '.join(GRID_PATTERNS),
                                       True)),
     'mesh.seed': (0, _desc('Random seed of the irregular pattern', True)),
+    'material.preset': ('', _desc('A measured fabric: ' + ', '.join(PRESETS) + ' (sources: '
+                                  'core/fabrics.py); sets zeta, xi, phi and density, and '
+                                  'any material.* given too overrides it; empty: none',
+                                  True)),
     'material.zeta': (50.0, _desc('Stretching coefficient zeta [N/m] (E h = 16 zeta/3)',
                                   fp=_fp(0.0, 1e9))),
     'material.xi': (2e-5, _desc('Bending coefficient xi [N m] (D = 6 xi)', fp=_fp(0.0, 1e6))),

@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from . import peer_mujoco as peer
-from ..core.mesh import grid_mesh
+from ..core.mesh import ClothMesh, grid_mesh
 from ..core.simulator import ClothSimulator, Material
 from ..ros.conversions import colormap, mesh_marker_array
 
@@ -323,25 +323,65 @@ def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
         mesh_distance_field(ico.vertices, ico.faces, 0.01, 0.04)
         field_s = time.perf_counter() - t
         sims = (contact_scene(n, False), contact_scene(n, True))
-        ks = [_batch_size(sim.step, 0.3, batch_s) for sim in sims]
-        ratios, per = [], [[], []]
-        for p in range(pairs):
-            got = [0.0, 0.0]
-            for j in ((0, 1) if p % 2 == 0 else (1, 0)):
-                t = time.perf_counter()
-                sims[j].step(ks[j])
-                got[j] = (time.perf_counter() - t) / ks[j]
-                per[j].append(got[j])
-            ratios.append(got[1] / got[0])
-        row = (f'| {n} | {sims[0].n_vertices} | {1e3 * np.median(per[0]):.3f} | '
-               f'{1e3 * np.median(per[1]):.3f} | {np.median(ratios):.2f} | '
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        row = (f'| {n} | {sims[0].n_vertices} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
                f'{sims[1].contact_state()["contacts"]} | {field_s:.2f} |')
         if mj:
             off = peer.median_ms(peer.contact_stepper(n, sims[1].dt, False), batch_s)
             on = peer.median_ms(peer.contact_stepper(n, sims[1].dt, True), batch_s)
-            row += (f' {off:.3f} | {on:.3f} | {on / off:.2f} | '
-                    f'{on / (1e3 * np.median(per[1])):.2f} |')
+            row += f' {off:.3f} | {on:.3f} | {on / off:.2f} | {on / ms1:.2f} |'
         print(row, flush=True)
+
+
+def paired_ms(sims, pairs: int = 9, batch_s: float = 0.1):
+    """(ms per step of sims[0], of sims[1], median ratio 1 / 0) from ``pairs`` pairs of
+    back-to-back batches, the order alternating (a shared host's load hits both)."""
+    ks = [_batch_size(sim.step, 0.3, batch_s) for sim in sims]
+    ratios, per = [], [[], []]
+    for p in range(pairs):
+        got = [0.0, 0.0]
+        for j in ((0, 1) if p % 2 == 0 else (1, 0)):
+            t = time.perf_counter()
+            sims[j].step(ks[j])
+            got[j] = (time.perf_counter() - t) / ks[j]
+            per[j].append(got[j])
+        ratios.append(got[1] / got[0])
+    return 1e3 * float(np.median(per[0])), 1e3 * float(np.median(per[1])), float(
+        np.median(ratios))
+
+
+# --------------------------------------------------------------------------- air
+
+def air_scene(n: int, air: bool) -> ClothSimulator:
+    """config/flag.yaml's flag (the polyester preset, held along one edge, gravity) as an
+    N x N grid of a 1.5 m x 1 m upright sheet, in a 6 m/s wind when ``air``."""
+    from ..core.air import Air
+    mesh = grid_mesh(n, n, width=1.5, height=1.0)
+    x = mesh.vertices
+    upright = ClothMesh(np.stack([x[:, 0], np.zeros(len(x)), x[:, 1]], axis=1), mesh.faces)
+    sim = ClothSimulator(upright, Material.preset('polyester', damping=0.02), dt=1e-5,
+                         check_dt=False)
+    sim.dt = DT_FRACTION * sim.critical_dt()
+    sim.pin(x[:, 0] <= x[:, 0].min() + 1e-9)
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    if air:
+        sim.air = Air()
+        sim.wind = (6.0, 0.0, 0.0)
+    sim.step(200)
+    return sim
+
+
+def part_air(sizes, pairs: int = 9, batch_s: float = 0.1):
+    print('\n## air: config/flag.yaml\'s flag (polyester, held along its pole) in a 6 m/s '
+          'wind, with air and without\n')
+    print('ms per step with the air model on and off, in alternating back-to-back batches, '
+          'median of the ratios.\n')
+    _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without'))
+    for n in sizes:
+        sims = (air_scene(n, False), air_scene(n, True))
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        print(f'| {n} | {sims[0].n_vertices} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} |',
+              flush=True)
 
 
 # --------------------------------------------------------------------------- the node
@@ -521,6 +561,8 @@ def main(argv=None):
                     choices=list(peer.SCENES))
     ap.add_argument('--contact-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the contact part (none: skip it)')
+    ap.add_argument('--air-sizes', type=int, nargs='*', default=[40, 80],
+                    help='N for the air part (none: skip it)')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
@@ -533,6 +575,8 @@ def main(argv=None):
             part_peer(ours, peer_sizes, sag, scene, discrete=scene is ISSUE6)
     if a.contact_sizes:
         part_contact(a.contact_sizes)
+    if a.air_sizes:
+        part_air(a.air_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')
