@@ -44,60 +44,40 @@ def gust(t: float, speed: float) -> np.ndarray:
 
 
 def main(argv=None) -> int:
-    import rclpy
     from geometry_msgs.msg import Vector3Stamped
-    from sensor_msgs.msg import PointCloud2
+    from .demo_peer import DemoPeer, parse
     ap = argparse.ArgumentParser(prog='flag_demo', description=__doc__.split('\n')[0])
     ap.add_argument('--node', default='cloth_node')
     ap.add_argument('--speed', type=float, default=6.0, help='mean wind speed [m/s]')
     ap.add_argument('--duration', type=float, default=10.0, help='seconds of wind')
     ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
-    a = ap.parse_args(rclpy.utilities.remove_ros_args(['flag_demo'] + list(
-        sys.argv[1:] if argv is None else argv))[1:])
-    rclpy.init(args=argv)
-    node = rclpy.create_node('flag_demo')
-    base = f'/{a.node}'
-    clouds = []
-    node.create_subscription(PointCloud2, f'{base}/points', clouds.append, 5)
-    wind = node.create_publisher(Vector3Stamped, f'{base}/wind', 10)
-
-    def sim_now() -> float:
-        stamp = clouds[-1].header.stamp
-        return stamp.sec + 1e-9 * stamp.nanosec
-
-    def points():
-        c = clouds[-1]
-        return np.frombuffer(bytes(c.data), dtype='<f4').reshape(-1, 6)[:, :3].astype(float)
-
+    a = parse(ap, argv)
+    peer = DemoPeer('flag_demo', a.node, argv)
+    wind = peer.node.create_publisher(Vector3Stamped, f'{peer.base}/wind', 10)
     try:
-        end = time.monotonic() + a.wait
-        while time.monotonic() < end and not (clouds and wind.get_subscription_count()):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        if not clouds:
-            print(f'flag_demo: error: no {base}/points (publish.points) after {a.wait:g} s: '
-                  'start the node with config/flag.yaml', file=sys.stderr)
+        if not peer.wait_for(wind.get_subscription_count, a.wait):
+            print(f'flag_demo: error: no {peer.base}/points (publish.points) after '
+                  f'{a.wait:g} s: start the node with config/flag.yaml', file=sys.stderr)
             return 2
-        x0 = points()
+        x0 = peer.points()
         pole = x0[:, 0].min()
         length = x0[:, 0].max() - pole
         free = x0[:, 0] > pole + 0.97 * length
-        t0 = sim_now()
+        t0 = peer.sim_now()
         side, out = [], []
         wall_end = time.monotonic() + 20.0 * a.duration + 5.0
         next_send = 0.0
-        while sim_now() < t0 + a.duration and time.monotonic() < wall_end:
+        while peer.sim_now() < t0 + a.duration and time.monotonic() < wall_end:
             now = time.monotonic()
             if now >= next_send:
                 msg = Vector3Stamped()
                 msg.header.frame_id = 'world'
                 msg.vector.x, msg.vector.y, msg.vector.z = map(
-                    float, gust(sim_now() - t0, a.speed))
+                    float, gust(peer.sim_now() - t0, a.speed))
                 wind.publish(msg)
                 next_send = now + 1.0 / RATE
-            n = len(clouds)
-            rclpy.spin_once(node, timeout_sec=0.01)
-            if len(clouds) > n and sim_now() > t0 + 0.5 * a.duration:
-                p = points()[free]
+            if peer.spin_once(0.01) and peer.sim_now() > t0 + 0.5 * a.duration:
+                p = peer.points()[free]
                 side.append(p[:, 1].mean())
                 out.append(p[:, 0].mean() - pole)
         if not out:
@@ -113,8 +93,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        peer.close()
 
 
 if __name__ == '__main__':

@@ -42,47 +42,22 @@ def fold_path(s: float, start: np.ndarray, end_x: float):
 
 
 def main(argv=None) -> int:
-    import rclpy
     from geometry_msgs.msg import PoseStamped
-    from sensor_msgs.msg import PointCloud2
     from std_srvs.srv import SetBool
+    from .demo_peer import DemoPeer, parse
     ap = argparse.ArgumentParser(prog='fold_demo', description=__doc__.split('\n')[0])
     ap.add_argument('--node', default='cloth_node')
     ap.add_argument('--duration', type=float, default=4.0, help='seconds of the carry')
     ap.add_argument('--settle', type=float, default=2.0, help='seconds after release')
     ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
-    a = ap.parse_args(rclpy.utilities.remove_ros_args(['fold_demo'] + list(
-        sys.argv[1:] if argv is None else argv))[1:])
-    rclpy.init(args=argv)
-    node = rclpy.create_node('fold_demo')
-    base = f'/{a.node}'
-    clouds = []
-    node.create_subscription(PointCloud2, f'{base}/points', clouds.append, 5)
+    a = parse(ap, argv)
+    peer = DemoPeer('fold_demo', a.node, argv)
+    node, base = peer.node, peer.base
     targets = {n: node.create_publisher(PoseStamped, f'{base}/handles/{n}/target', 10)
                for n in ('left', 'right')}
     grasp = {n: node.create_client(SetBool, f'{base}/handles/{n}/grasp')
              for n in ('left', 'right')}
-
-    def spin(seconds):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=min(0.01, max(end - time.monotonic(), 0)))
-
-    def sim_now() -> float:
-        stamp = clouds[-1].header.stamp
-        return stamp.sec + 1e-9 * stamp.nanosec
-
-    def wait_sim(seconds):
-        """Spin until the cloth's simulation time has moved on ``seconds`` (a node slower
-        than real time takes longer; at most 20 s of wall time per second asked)."""
-        target = sim_now() + seconds
-        end = time.monotonic() + 20.0 * seconds + 1.0
-        while sim_now() < target and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.01)
-
-    def points():
-        c = clouds[-1]
-        return np.frombuffer(bytes(c.data), dtype='<f4').reshape(-1, 6)[:, :3].astype(float)
+    wait_sim, points = peer.wait_sim, peer.points
 
     def send(name, p, q):
         msg = PoseStamped()
@@ -96,15 +71,12 @@ def main(argv=None) -> int:
         fut = grasp[name].call_async(SetBool.Request(data=data))
         end = time.monotonic() + 10
         while not fut.done() and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.05)
+            peer.spin_once(0.05)
         return fut.result()
 
     try:
-        end = time.monotonic() + a.wait
-        while time.monotonic() < end and not (clouds and all(
-                c.wait_for_service(timeout_sec=0.01) for c in grasp.values())):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        if not clouds:
+        if not peer.wait_for(lambda: all(c.wait_for_service(timeout_sec=0.01)
+                                         for c in grasp.values()), a.wait):
             print(f'fold_demo: error: no {base}/points (publish.points) or handle services '
                   f'after {a.wait:g} s: start the node with config/fold.yaml', file=sys.stderr)
             return 2
@@ -129,7 +101,7 @@ def main(argv=None) -> int:
         for k in range(1, steps + 1):
             for name, p in corners.items():
                 send(name, *fold_path(k / steps, p, end_x))
-            spin(max(0.0, t0 + k / RATE - time.monotonic()))
+            peer.spin(max(0.0, t0 + k / RATE - time.monotonic()))
         wait_sim(0.3)
         for name in corners:
             call(name, False)
@@ -147,8 +119,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        peer.close()
 
 
 if __name__ == '__main__':
