@@ -197,8 +197,8 @@ def test_a_message_larger_than_a_chunk(tmp_path):
     from cosserat_ros.tools.bagfile import BagWriter, CHUNK_BYTES
     m = grid_mesh(160, 160)
     colors = colormap(m.vertices[:, 0], 0.0, 1.0)
-    out = tmp_path / 'big'
-    w = BagWriter(out)
+    out = tmp_path / 'bags' / 'big'          # a parent that does not exist yet, as bags/ in
+    w = BagWriter(out)                       # the README's `record -o bags/...` on a clone
     w.add('/cloth_node/mesh', 'visualization_msgs/msg/MarkerArray')
     sizes = []
     for k in range(3):
@@ -208,6 +208,8 @@ def test_a_message_larger_than_a_chunk(tmp_path):
     w.close()
     assert min(sizes) > CHUNK_BYTES
     raw = (out / 'big.mcap').read_bytes()
+    with pytest.raises(FileExistsError):      # never over an existing bag
+        BagWriter(out)
     reader = make_reader(io.BytesIO(raw), validate_crcs=True)
     got = [(msg.log_time, msg.data) for _, _, msg in reader.iter_messages()]
     assert [t for t, _ in got] == [0, 10 ** 8, 2 * 10 ** 8]

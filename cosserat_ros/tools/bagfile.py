@@ -94,7 +94,8 @@ class BagWriter:
     def __init__(self, path, typestore=None):
         from rosbags.typesys import get_typestore, Stores
         self.path = Path(path)
-        self.path.mkdir(parents=False, exist_ok=False)
+        self.path.parent.mkdir(parents=True, exist_ok=True)    # `record -o bags/run1`
+        self.path.mkdir(exist_ok=False)
         self.file = self.path / f'{self.path.name}.mcap'
         self._f = open(self.file, 'xb', buffering=0)    # raw: nothing held back to fail later
         self._ts = typestore or get_typestore(Stores.ROS2_JAZZY)
