@@ -33,6 +33,10 @@ def main():
     s.add_obstacle('mesh', vertices=ico.vertices, faces=ico.faces, center=(0, 0, -1))
     s.step(1)
     s.contact_forces()
+    for phi in (0.0, 1e-6):                      # the implicit solver's kernels
+        s = _sim(6, phi, solver='implicit')
+        s.dt = 1.0 / 60.0
+        s.step(1)
     for phi in (0.0, 1e-6):                      # the scalar vertex pass
         _sim(6, phi, simd=False).step(1)
     s = ClothSimulator(grid_mesh(6, 6), Material(zeta=10.0, xi=1e-3, phi=1e-4,

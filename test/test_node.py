@@ -253,6 +253,39 @@ def test_wind_blows_the_cloth_in_air_bad_wind_is_refused_and_it_lapses(h):
     assert h.node.diverged is None
 
 
+def test_implicit_solver_runs_at_frame_rate_steps_and_reports_its_solve():
+    """solver: implicit accepts dt = 1/30 s (far above the critical step), reports each
+    solve in /diagnostics, takes solver.iterations / solver.tolerance at run time and
+    refuses bad ones with the reason; the cloth still falls and hangs."""
+    h = Harness(**{'solver': 'implicit', 'dt': 1.0 / 30.0, 'solver.iterations': 15})
+    try:
+        assert h.node.sim.solver_kind == 'implicit' and h.node.sim.solver_iterations == 15
+        assert h.node.sim.dt > 10 * h.node.sim.critical_dt()
+        diag = {}
+
+        def latest():
+            for d in h.diags[-1:]:
+                diag.update({kv.key: kv.value for kv in d.status[0].values})
+            return 'solver_residual' in diag
+        assert h.spin_until(lambda: latest() and h.node.sim.step_count > 5, 20), diag
+        assert diag['solver'] == 'implicit' and int(diag['solver_iterations']) >= 1
+        assert float(diag['solver_residual']) >= 0.0 and 'solver_converged' in diag
+        z = h.node.sim.positions[:, 2]
+        assert np.all(np.isfinite(z)) and z.min() < -0.05           # it has fallen
+        ok = h.node.set_parameters([Parameter('solver.iterations', value=30),
+                                    Parameter('solver.tolerance', value=1e-4),
+                                    Parameter('dt', value=1.0 / 60.0)])
+        assert all(r.successful for r in ok)
+        assert h.node.sim.solver_iterations == 30 and h.node.sim.solver_tolerance == 1e-4
+        for name, value in (('solver.iterations', 0), ('solver.tolerance', 0.0),
+                            ('solver.tolerance', 2.0), ('solver', 'explicit')):
+            r = h.node.set_parameters([Parameter(name, value=value)])[0]
+            assert not r.successful, name
+        assert h.node.diverged is None
+    finally:
+        h.close()
+
+
 def test_a_material_preset_with_explicit_overrides():
     """material.preset gives zeta, xi, phi and density; a material.* given too wins, the
     damping is material.damping's, and the parameters then read what the cloth has."""
@@ -334,6 +367,9 @@ def test_pause_service(h):
     ({'material.preset': 'corduroy'}, 'preset must be one of'),
     ({'air.wind': [0.0, 0.0, 80.0]}, 'max_wind'),
     ({'air.drag': -1.0}, 'air.drag'),
+    ({'solver': 'verlet'}, 'solver must be one of'),
+    ({'solver': 'implicit', 'divergence': 'covariant'}, 'needs divergence: variational'),
+    ({'dt': 0.01}, 'critical step'),                      # explicit: far above it
 ])
 def test_bad_startup_parameters_are_refused(params, match):
     ctx = Context()

@@ -82,6 +82,37 @@ def test_membrane_blocks_are_exact_and_psd_only_clamps_compression():
     assert np.linalg.eigvalsh(exact).min() < 0 <= np.linalg.eigvalsh(clamped).min()
 
 
+def test_membrane_matrix_is_the_whole_hessian_and_its_diagonal_the_blocks():
+    # the sparse d2E_m/dx2 the implicit solver factors: every column against the central
+    # difference of the gradient (stretched: psd changes nothing), its diagonal blocks the
+    # blocks, symmetric; compressed, psd makes it positive semi-definite
+    model = _model('irregular')
+    coeff = model.coefficients(MAT)
+    n = model.n_vertices
+    x = model.mesh.vertices * np.array([1.05, 1.03, 1.0])
+    x[:, 2] += 0.02 * np.sin(4.0 * x[:, 0])
+    H = membrane.hessian_matrix(model, coeff, x).toarray()
+    assert np.abs(H - H.T).max() <= 1e-12 * np.abs(H).max()
+    h = 1e-6
+    fd = np.zeros((3 * n, 3 * n))
+    for j in range(3 * n):
+        xp, xm = x.copy(), x.copy()
+        xp.reshape(-1)[j] += h
+        xm.reshape(-1)[j] -= h
+        fd[:, j] = (membrane.gradient(model, coeff, xp)
+                    - membrane.gradient(model, coeff, xm)).reshape(-1) / (2 * h)
+    assert np.abs(H - fd).max() <= 1e-5 * np.abs(fd).max()
+    blocks = np.stack([H[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n)])
+    assert np.abs(blocks - membrane.hessian_blocks(model, coeff, x)).max() \
+        <= 1e-12 * np.abs(blocks).max()
+    compressed = model.mesh.vertices * np.array([0.95, 0.97, 1.0])
+    exact = membrane.hessian_matrix(model, coeff, compressed, psd=False).toarray()
+    clamped = membrane.hessian_matrix(model, coeff, compressed).toarray()
+    scale = np.abs(exact).max()
+    assert np.linalg.eigvalsh(exact).min() < -1e-6 * scale
+    assert np.linalg.eigvalsh(clamped).min() >= -1e-10 * scale
+
+
 @pytest.mark.parametrize('term', ['bending', 'coupling'])
 @pytest.mark.parametrize('name', ['regular', 'irregular'])
 def test_gauss_newton_blocks_are_exact_at_a_flat_rest_state(term, name):

@@ -17,7 +17,8 @@ Example::
 What it holds: ``sim.model`` (:class:`.model.Model`, frozen rest data), ``sim.state``
 (:class:`.state.State`: x, v and the energy balance), ``sim.control``
 (:class:`.state.Control`: applied forces, gravity, pins), ``sim.coefficients`` (the
-material on the mesh) and ``sim.solver`` (:class:`.solvers.explicit.ExplicitSolver`).
+material on the mesh) and ``sim.solver`` (:class:`.solvers.explicit.ExplicitSolver` by
+default; :class:`.solvers.implicit.ImplicitSolver` with ``solver='implicit'``).
 
 Units are SI throughout: positions [m], velocities [m/s], forces [N], energies [J],
 accelerations [m/s^2], time [s].
@@ -40,6 +41,7 @@ from .model import Model
 from .handles import HandleSet
 from .obstacles import ObstacleSet
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
+from .solvers.implicit import ImplicitSolver
 from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
 from .state import Control, State
 from .terms import covariant
@@ -93,10 +95,18 @@ class ClothSimulator:
     simd : bool
         Run the vertex pass four vertices per SIMD vector (default). False runs it one
         vertex at a time, the same formulas; kept for tests and comparison.
+    solver : {"explicit", "implicit"}
+        The time integrator: symplectic Euler (default; stable below :meth:`critical_dt`)
+        or backward Euler by Newton-CG (:mod:`.solvers.implicit`; any dt, dissipative,
+        its controls :attr:`solver_iterations` and :attr:`solver_tolerance`, its last
+        solve in :attr:`solve_report`).
     """
 
+    SOLVERS = ('explicit', 'implicit')
+
     def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
-                 divergence: str = 'variational', check_dt: bool = True, simd: bool = True):
+                 divergence: str = 'variational', check_dt: bool = True, simd: bool = True,
+                 solver: str = 'explicit'):
         if not isinstance(mesh, ClothMesh):
             raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
         if not isinstance(material, Material):
@@ -104,10 +114,18 @@ class ClothSimulator:
         if divergence not in DIVERGENCE_METHODS:
             raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
                              f'got {divergence!r}')
+        if solver not in self.SOLVERS:
+            raise ValueError(f'solver must be one of {self.SOLVERS}, got {solver!r}')
+        if solver == 'implicit' and divergence != 'variational':
+            raise ValueError("solver='implicit' needs divergence='variational': the seed's "
+                             'covariant route has no energy to minimise')
         self.mesh = mesh
         self._divergence = divergence
         self.model = Model.from_mesh(mesh)
         self.solver = ExplicitSolver(self.model, divergence, simd)
+        if solver == 'implicit':
+            self.solver = ImplicitSolver(self.model, self.solver)
+        self._solver_kind = solver
         n = mesh.n_vertices
         self.state = State.at_rest(mesh.vertices)
         self.control = Control.empty(n, faces=mesh.n_faces)
@@ -127,7 +145,7 @@ class ClothSimulator:
         self._omega2_known: Dict[tuple, float] = {}
         self.material = material
         self._dt = self._check_positive(dt, 'dt')
-        if check_dt:
+        if check_dt and solver == 'explicit':
             self._warn_if_unstable(self._dt)
 
     # ------------------------------------------------------------------ state
@@ -322,6 +340,58 @@ class ClothSimulator:
         self._time = 0.0
         self._steps = 0
 
+    # ------------------------------------------------------------------ solver
+    @property
+    def solver_kind(self) -> str:
+        """``'explicit'`` or ``'implicit'`` (the constructor's ``solver``)."""
+        return self._solver_kind
+
+    def _implicit(self, what: str) -> ImplicitSolver:
+        if self._solver_kind != 'implicit':
+            raise ValueError(f'{what} is a control of the implicit solver; this simulator '
+                             "runs the explicit one (ClothSimulator(..., solver='implicit'))")
+        return self.solver
+
+    @property
+    def solver_iterations(self) -> int:
+        """Most Newton iterations per implicit step (default 20)."""
+        return self._implicit('solver_iterations').iterations
+
+    @solver_iterations.setter
+    def solver_iterations(self, value: int):
+        s = self._implicit('solver_iterations')
+        if isinstance(value, bool) or int(value) != value or not 1 <= value <= 1000:
+            raise ValueError(f'solver_iterations must be an integer in [1, 1000], got {value!r}')
+        s.iterations = int(value)
+
+    @property
+    def solver_tolerance(self) -> float:
+        """Convergence of an implicit step: its largest vertex residual force relative to
+        the step's start (its whole unbalanced force), default 1e-3."""
+        return self._implicit('solver_tolerance').tolerance
+
+    @solver_tolerance.setter
+    def solver_tolerance(self, value: float):
+        s = self._implicit('solver_tolerance')
+        value = self._check_positive(value, 'solver_tolerance')
+        if value >= 1.0:
+            raise ValueError(f'solver_tolerance must be below 1 (a fraction of the start\'s '
+                             f'residual), got {value!r}')
+        s.tolerance = value
+
+    @property
+    def solve_report(self) -> Dict[str, float]:
+        """What the last implicit step's solve did: ``iterations`` (Newton),
+        ``cg_iterations``, ``factorizations`` (of its preconditioner, which is kept
+        across steps until CG needs too many iterations), ``residual`` (in
+        :attr:`solver_tolerance`'s units),
+        ``converged``, and ``unconverged_steps`` since construction."""
+        r = self._implicit('solve_report').last
+        return {'iterations': r.iterations, 'cg_iterations': r.cg_iterations,
+                'factorizations': r.factorizations, 'residual': r.residual,
+                'converged': r.converged,
+                'unconverged_steps': r.unconverged_steps}
+
     # ------------------------------------------------------------------ dynamics
     def step(self, n: int = 1) -> None:
         """Advance ``n`` steps of size :attr:`dt` inside compiled code.
@@ -343,7 +413,7 @@ class ClothSimulator:
             done = self._step_in_calls(n, cap)
         if done < n:
             self.state.assign(backup)
-            crit = self.critical_dt()
+            crit = self.critical_dt() if self._solver_kind == 'explicit' else math.inf
             if self._dt > crit:
                 hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
                         'reduce dt or soften the material')
@@ -531,8 +601,11 @@ class ClothSimulator:
     def energy_and_densities(self):
         """:meth:`energy` and :meth:`energy_densities` from one evaluation of the fields
         and of the internal force."""
+        # the explicit solver's velocity is half a step behind x (leapfrog), the implicit
+        # one's at x's time: the report carries it by dt / 2 for the first only
+        lag = self._dt if self._solver_kind == 'explicit' else 0.0
         return _energy.report(self.model, self.coefficients, self.state, self.control,
-                              self._dt, self._scratch, self.internal_forces())
+                              lag, self._scratch, self.internal_forces())
 
     def energy_densities(self) -> Dict[str, np.ndarray]:
         """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,

@@ -138,6 +138,11 @@ class ClothNode(Node):
         self.mesh = self._build_mesh(p)
         material = self._initial_material(p)
         check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
+        check_choice(p['solver'], ClothSimulator.SOLVERS, 'solver')
+        if p['solver'] == 'implicit' and p['divergence'] != 'variational':
+            raise ConfigError("solver: implicit needs divergence: variational (the seed's "
+                              'covariant route has no energy to minimise)')
+        self.implicit = p['solver'] == 'implicit'
         gravity = vec3(p['gravity'], 'gravity')
         self._max_wind = p['max_wind']
         self._steady_wind = checked_wind(p['air.wind'], self._max_wind)
@@ -149,14 +154,18 @@ class ClothNode(Node):
         # start-up below needs after its step (cosserat_ros.core.warmup)
         warmup.start(steps_tiled(self.mesh.n_vertices, p['divergence']), material.phi != 0.0)
         self.sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
-                                  divergence=p['divergence'], check_dt=False)
+                                  divergence=p['divergence'], check_dt=False,
+                                  solver=p['solver'])
+        if self.implicit:
+            self.sim.solver_iterations = p['solver.iterations']
+            self.sim.solver_tolerance = p['solver.tolerance']
         # compile (or load from cache) every kernel of the step and of the energy report
         # before any topic exists: a recorder that starts when the topics appear must not
         # wait through a first tick that compiles
         self.sim.step(1)
         self.sim.energy_and_densities()
         self.sim.reset()
-        check_dt(p['dt'], self.sim.critical_dt())
+        check_dt(p['dt'], math.inf if self.implicit else self.sim.critical_dt())
         self.sim.dt = p['dt']
         self.get_logger().info(
             f'{self.mesh}: kernels ready and critical dt {self.sim.critical_dt():.3g} s '
@@ -835,7 +844,7 @@ class ClothNode(Node):
             Air(**air)
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        if material != self.sim.material or dt != self.sim.dt:
+        if not self.implicit and (material != self.sim.material or dt != self.sim.dt):
             crit = self.sim.critical_dt(material)
             if dt > crit:
                 return SetParametersResult(
@@ -862,6 +871,10 @@ class ClothNode(Node):
                 self._max_wind = val
             elif name == 'dt':
                 self.sim.dt = val
+            elif name == 'solver.iterations' and self.implicit:
+                self.sim.solver_iterations = val
+            elif name == 'solver.tolerance' and self.implicit:
+                self.sim.solver_tolerance = val
             elif name == 'gravity':
                 self.sim.gravity = list(val)
             elif name == 'coloring':
@@ -1062,7 +1075,19 @@ class ClothNode(Node):
                 'sim_time': float(self.sim.time), 'paused': self.paused,
                 'rejected_total': rej, 'obstacles': len(self.sim.obstacles),
                 'air': self.sim.air is not None,
-                'wind_speed': float(np.linalg.norm(self.sim.wind))}
+                'wind_speed': float(np.linalg.norm(self.sim.wind)),
+                'solver': self.sim.solver_kind}
+        if self.implicit:
+            r = self.sim.solve_report
+            vals.update({'solver_iterations': r['iterations'],
+                         'solver_cg_iterations': r['cg_iterations'],
+                         'solver_residual': float(r['residual']),
+                         'solver_converged': r['converged'],
+                         'solver_unconverged_steps': r['unconverged_steps']})
+            if not r['converged'] and level == DiagnosticStatus.OK:
+                level, msg = DiagnosticStatus.WARN, (
+                    f"implicit solve not converged (residual {r['residual']:.2g} > "
+                    f'solver.tolerance {self.sim.solver_tolerance:g})')
         if self.sim.obstacles:
             cs = self.sim.contact_state()
             vals['contacts'] = cs['contacts']

@@ -90,6 +90,15 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                            True)),
     'divergence': ('variational', _desc('Internal force discretisation: '
                                         + ', '.join(DIVERGENCE_METHODS), True)),
+    'solver': ('explicit', _desc('Time integrator: explicit (symplectic Euler, dt below the '
+                                 'critical step) or implicit (backward Euler by Newton-CG, '
+                                 'any dt up to 1 s, dissipative)', True)),
+    'solver.iterations': (20, _desc('Most Newton iterations per implicit step (solver: '
+                                    'implicit only)',
+                                    ip=[IntegerRange(from_value=1, to_value=1000, step=1)])),
+    'solver.tolerance': (1e-3, _desc('Implicit convergence: the largest vertex residual '
+                                     'force relative to the start of the step',
+                                     fp=_fp(1e-12, 0.5))),
     'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
     'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
     'force_timeout': (1.0, _desc('Forces lapse after this many seconds without a new '

@@ -34,6 +34,14 @@ replaces S by its positive part, which leaves a stretched triangle's block exact
 makes every block positive semi-definite (as implicit cloth solvers do, e.g. Teran et al.
 2005, "Robust quasistatic finite elements").
 
+Between two corners c, d of a face the same rows give the off-diagonal block,
+
+    d2E_m/dx_c dx_d = (G_c S G_d^T) I_3  +  area 2 zeta L_c^T Q L_d,
+
+which :func:`hessian_matrix` assembles, with S's positive part, into the whole sparse
+(3n x 3n) matrix: positive semi-definite (a sum over faces of ``J^T Q J`` and ``S+ (x)
+G^T G``), exact for stretched triangles; the implicit solver factors it.
+
 The per-vertex kernels below gather over the vertex's incident faces (``VertexFaces``),
 recomputing each face's strain, so they never scatter; the step (``fast/step.py``) runs
 :func:`face_membrane` once per face instead and gathers the corner gradients.
@@ -45,8 +53,8 @@ import numpy as np
 
 from ..compiled import kernel
 
-__all__ = ['energy', 'gradient', 'hessian_blocks', 'face_membrane', 'deformation_gradient',
-           'corner_gradient_row']
+__all__ = ['energy', 'gradient', 'hessian_blocks', 'hessian_matrix', 'face_membrane',
+           'deformation_gradient', 'corner_gradient_row']
 
 
 @kernel(inline='always')
@@ -261,3 +269,92 @@ def hessian_blocks(model, coeff, x: np.ndarray, psd: bool = True) -> np.ndarray:
     add_hessian_blocks(x, f.corners, f.dinv, f.area, vf.ptr, vf.face, vf.corner, coeff.zeta,
                        psd, h)
     return h
+
+
+
+@kernel(inline='always')
+def _positive_stress(s11, s12, s22):
+    """The positive part of the symmetric 2x2 S = (s11, s12, s22)."""
+    tr = 0.5 * (s11 + s22)
+    rad = np.sqrt(0.25 * (s11 - s22) ** 2 + s12 * s12)
+    l1 = tr + rad
+    l2 = tr - rad
+    if l2 >= 0.0:
+        return s11, s12, s22
+    if l1 <= 0.0:
+        return 0.0, 0.0, 0.0
+    if s12 != 0.0:              # l1 v v^T with v the eigenvector of l1
+        v0 = l1 - s22
+        v1 = s12
+    elif s11 >= s22:
+        v0 = 1.0
+        v1 = 0.0
+    else:
+        v0 = 0.0
+        v1 = 1.0
+    nv = v0 * v0 + v1 * v1
+    return l1 * v0 * v0 / nv, l1 * v0 * v1 / nv, l1 * v1 * v1 / nv
+
+
+@kernel(parallel=True)
+def face_hessians(x, faces, dinv, face_area, zeta, psd, out):
+    """out[t, c, d] (m,3,3,3,3) = d2(area_t W_m)/dx_c dx_d of face t (module docstring)."""
+    for t in nb.prange(faces.shape[0]):
+        f00, f01, f10, f11, f20, f21 = deformation_gradient(x, faces, dinv, t, t)
+        e11, e12, e22 = green_strain(f00, f01, f10, f11, f20, f21)
+        w = face_area[t] * 2.0 * zeta
+        s11, s12, s22 = stress_times_area(w, e11, e12, e22)
+        if psd:
+            s11, s12, s22 = _positive_stress(s11, s12, s22)
+        ga = np.empty(3)
+        gb = np.empty(3)
+        L = np.empty((3, 3, 3))          # corner, strain row (11, 12, 22), coordinate
+        for c in range(3):
+            a, b = _corner_weights(dinv, t, c)
+            ga[c] = a
+            gb[c] = b
+            L[c, 0, 0] = a * f00
+            L[c, 0, 1] = a * f10
+            L[c, 0, 2] = a * f20
+            L[c, 2, 0] = b * f01
+            L[c, 2, 1] = b * f11
+            L[c, 2, 2] = b * f21
+            L[c, 1, 0] = 0.5 * (b * f00 + a * f01)
+            L[c, 1, 1] = 0.5 * (b * f10 + a * f11)
+            L[c, 1, 2] = 0.5 * (b * f20 + a * f21)
+        for c in range(3):
+            for d in range(3):
+                geo = (ga[c] * (s11 * ga[d] + s12 * gb[d])
+                       + gb[c] * (s12 * ga[d] + s22 * gb[d]))
+                for r in range(3):
+                    for q in range(3):
+                        h = w * (3.0 * L[c, 0, r] * L[d, 0, q] + 3.0 * L[c, 2, r] * L[d, 2, q]
+                                 + L[c, 0, r] * L[d, 2, q] + L[c, 2, r] * L[d, 0, q]
+                                 + 4.0 * L[c, 1, r] * L[d, 1, q])
+                        if r == q:
+                            h += geo
+                        out[t, c, d, r, q] = h
+
+
+def hessian_matrix(model, coeff, x: np.ndarray, psd: bool = True):
+    """d2E_m/dx2 as a scipy.sparse CSR matrix (3n, 3n) [N/m], row 3 j + k for coordinate k
+    of vertex j (module docstring: every corner pair of every face; ``psd``: the stress
+    part from S's positive part). Its diagonal blocks are :func:`hessian_blocks`."""
+    import scipy.sparse as sp
+    f = model.faces
+    c = f.corners
+    n = len(x)
+    blk = np.empty((len(c), 3, 3, 3, 3))
+    face_hessians(np.ascontiguousarray(x, dtype=np.float64), c, f.dinv, f.area, coeff.zeta,
+                  psd, blk)
+    rows, cols = hessian_pattern(c)
+    return sp.csr_matrix((blk.ravel(), (rows, cols)), shape=(3 * n, 3 * n))
+
+
+def hessian_pattern(corners: np.ndarray):
+    """(rows, cols) of :func:`face_hessians`' entries, raveled, in the 3n x 3n matrix."""
+    c = corners
+    rows = (3 * c[:, :, None, None, None] + np.arange(3)[None, None, None, :, None])
+    cols = (3 * c[:, None, :, None, None] + np.arange(3)[None, None, None, None, :])
+    shape = (len(c), 3, 3, 3, 3)
+    return (np.broadcast_to(rows, shape).ravel(), np.broadcast_to(cols, shape).ravel())

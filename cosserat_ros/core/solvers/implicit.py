@@ -1,0 +1,355 @@
+"""The implicit solver: backward Euler of the discrete Cosserat surface, by Newton-CG.
+
+Backward Euler (the same forces as Eq. 1 of the explicit update, taken at the end of the
+step) for a free vertex i with lumped mass ``m_i`` and damping ``c_i``::
+
+    m_i (v' - v) / dt = f_int(x') + f_applied + m_i g - c_i v',     x' = x + dt v'
+
+is the stationarity condition of the incremental potential (Martin et al. 2011, "Example-
+based elastic materials"; Liu, Bouaziz & Kavan 2017, Eq. 2), with ``y = x + dt v + dt^2
+(f_applied / m + g)``::
+
+    Phi(x') = sum_i m_i / (2 dt^2) |x'_i - y_i|^2 + c_i / (2 dt) |x'_i - x_i|^2 + E(x')
+
+E the discrete energy of :mod:`..terms` (membrane + bending + coupling). Its gradient is
+the residual ``r(x') = m (x' - y) / dt^2 + c (x' - x) / dt - f_int(x')`` and its Hessian
+``A = (m / dt^2 + c / dt) I + H_E``. Each step minimises Phi over the free vertices (a
+pinned or held vertex moves with its prescribed velocity, as in the explicit update) by
+Newton's method:
+
+* the Newton system ``A p = -r`` by preconditioned conjugate gradients, matrix-free:
+  ``H_E q = -(f_int(x' + eps q) - f_int(x')) / eps`` from the compiled internal force of
+  the explicit solver (one evaluation per CG iteration); preconditioned by the inverse of
+  A's per-vertex 3x3 diagonal blocks (``hessian_blocks`` of each term, positive
+  semi-definite, plus the mass and damping); stopped at the inexact-Newton forcing
+  tolerance ``|r + A p| <= eta |r|`` (Eisenstat & Walker 1996, eta = min(0.5,
+  sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative curvature: H_E is indefinite
+  under compression; Steihaug truncation, Nocedal & Wright 2006, Alg. 7.1) with the
+  iterate so far, or the steepest descent if there is none;
+* a backtracking (Armijo) line search on Phi, so that every iteration lowers the
+  potential (no overshoot, no divergence from a too-long Newton step at large dt); a
+  full step whose change of Phi is below Phi's round-off (1e-11 of it, near the
+  solution) is taken if it lowers the largest residual;
+* converged when the residual's largest vertex force ``max_i |r_i|`` has fallen below
+  ``tolerance`` times its value at the start (the step's whole unbalanced force: the
+  applied forces, gravity, the elastic forces out of balance, the inertia), so that the
+  velocity change of the step is right to that fraction whatever the forces' size, or
+  after ``iterations`` Newton iterations; a residual below 1e-8 of the largest force on
+  a vertex (elastic, applied or weight) is round-off: a cloth at rest takes none. The start is ``x + dt v``, where the vertices coast to.
+
+What backward Euler does to energy: it dissipates, strongly for the modes of period
+below ~dt (the stiff membrane modes) and weakly for slow ones (a mode of frequency omega
+loses a fraction ~omega^2 dt^2 of its amplitude per step, Hairer, Lubich & Wanner 2006);
+statics are exact (at rest the residual is the static balance), which is what the tests
+compare with the explicit solver. The numerical dissipation is not in ``State.acc``'s
+``dissipated`` (which counts the damping force only), so the energy report's total drops
+by it.
+
+Air (``Control.air``) is applied as a force computed at the start of each step (its
+velocity derivative is not in A), contact (:func:`.update.contact_range`) runs after the
+solve as in the explicit update, on the step's start and end positions.
+
+``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
+step's solve did (Newton iterations, CG iterations, residual, converged).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..air import air_pass
+from ..constants import VERTEX_CHUNK
+from ..terms import TERMS
+from .update import contact_range
+
+__all__ = ['ImplicitSolver', 'SolveReport']
+
+
+@dataclass
+class SolveReport:
+    """What the last step's Newton solve did."""
+
+    #: Newton iterations of the last step
+    iterations: int = 0
+    #: conjugate-gradient iterations summed over them (= internal force evaluations)
+    cg_iterations: int = 0
+    #: factorizations of the preconditioner in the last step (it is kept across steps)
+    factorizations: int = 0
+    #: the final residual max_i |r_i| relative to the step's start (dimensionless)
+    residual: float = 0.0
+    #: whether it fell below the tolerance
+    converged: bool = True
+    #: steps whose solve stopped at the iteration limit, since construction
+    unconverged_steps: int = 0
+
+
+class ImplicitSolver:
+    """Backward Euler by Newton-CG (module docstring).
+
+    Parameters
+    ----------
+    model : :class:`..model.Model`
+    explicit : :class:`.explicit.ExplicitSolver`
+        Whose compiled internal force this solver evaluates.
+    iterations : int
+        Most Newton iterations per step (default 20).
+    tolerance : float
+        Convergence: the largest vertex residual relative to the step's start
+        (default 1e-3).
+    cg_iterations : int
+        Most conjugate-gradient iterations per Newton iteration (default 200).
+    """
+
+    def __init__(self, model, explicit, iterations: int = 20, tolerance: float = 1e-3,
+                 cg_iterations: int = 200):
+        if explicit.divergence != 'variational':
+            raise ValueError("the implicit solver needs divergence='variational' (the seed's "
+                             "covariant route has no energy to minimise)")
+        self.model = model
+        self.explicit = explicit
+        self.iterations = iterations
+        self.tolerance = tolerance
+        self.cg_iterations = cg_iterations
+        n = model.n_vertices
+        e = model.mesh.edges
+        x0 = model.mesh.vertices
+        self.edge_length = float(np.linalg.norm(x0[e[:, 0]] - x0[e[:, 1]], axis=1).mean())
+        self.last = SolveReport()
+        self._part = np.zeros((-(-n // VERTEX_CHUNK), 3))
+        self._f = np.zeros((n, 3))
+        self._fq = np.zeros((n, 3))
+        self._csc = None
+        self._pinv = None
+        self._pinv_key = None
+        #: CG iterations above which the factored preconditioner is rebuilt
+        self.refresh = 8
+        self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
+
+    # ------------------------------------------------------------------ pieces
+    def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
+        """The internal force at positions x (n,3) into out (n,3) [N] (the explicit
+        solver's compiled one)."""
+        self.explicit.internal_forces(np.ascontiguousarray(x), coeff, out)
+
+    def _energy(self, coeff, x: np.ndarray) -> float:
+        return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
+
+    def _pattern(self):
+        """The fixed sparsity of P (the membrane's face blocks and the diagonal blocks),
+        as CSC arrays and the map from the assembled values to them; built once."""
+        if self._csc is None:
+            from ..terms.membrane import hessian_pattern
+            n = self.model.n_vertices
+            r0, c0 = hessian_pattern(self.model.faces.corners)
+            k = np.arange(3)
+            r1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, :, None],
+                                 (n, 3, 3)).ravel()
+            c1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, None, :],
+                                 (n, 3, 3)).ravel()
+            rows, cols = np.concatenate([r0, r1]), np.concatenate([c0, c1])
+            key = cols.astype(np.int64) * (3 * n) + rows       # column-major: CSC order
+            uniq, inv = np.unique(key, return_inverse=True)
+            indices = (uniq % (3 * n)).astype(np.int32)
+            indptr = np.searchsorted(uniq // (3 * n), np.arange(3 * n + 1)).astype(np.int32)
+            self._csc = (rows, cols, inv, len(uniq), indices, indptr)
+        return self._csc
+
+    def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, pinned: np.ndarray):
+        """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
+        + c / dt) I + the membrane's whole Hessian (positive part,
+        ``membrane.face_hessians``) + the bending and coupling diagonal blocks, with the
+        pinned rows and columns replaced by the identity; factored by SuperLU."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+        from ..terms.membrane import face_hessians
+        mdl = self.model
+        f = mdl.faces
+        n = len(x)
+        rows, cols, inv, nnz, indices, indptr = self._pattern()
+        blocks = TERMS['bending'].hessian_blocks(mdl, coeff, x)
+        if coeff.phi != 0.0:
+            blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
+        blocks[:, [0, 1, 2], [0, 1, 2]] += diag
+        blocks[pinned] = np.eye(3)
+        blk = self._face_blk
+        face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
+        vals = np.concatenate([blk.ravel(), blocks.ravel()])
+        if pinned.any():
+            pd = np.repeat(pinned, 3)
+            vals[:blk.size][pd[rows[:blk.size]] | pd[cols[:blk.size]]] = 0.0
+        data = np.bincount(inv, weights=vals, minlength=nnz)
+        lu = splu(sp.csc_matrix((data, indices, indptr), shape=(3 * n, 3 * n)),
+                  permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+                  options={'SymmetricMode': True})
+
+        def solve(r):
+            z = lu.solve(r.reshape(-1)).reshape(n, 3)
+            z[pinned] = 0.0
+            return z
+        return solve
+
+    # ------------------------------------------------------------------ step
+    def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
+        """Advance ``nsteps`` backward-Euler steps in place; returns the steps completed
+        (fewer: the next one produced a non-finite value or a speed above sqrt(vmax2),
+        ``state`` is then invalid and the caller restores it)."""
+        for s in range(nsteps):
+            if not self._one_step(state, control, coeff, dt, vmax2):
+                return s
+        return nsteps
+
+    def _one_step(self, state, control, coeff, dt, vmax2) -> bool:
+        m = self.model
+        x, v = state.x, state.v
+        if control.air[0] != 0.0:
+            air_pass(x, v, m.faces.corners, m.vertex_faces.ptr, m.vertex_faces.face, control,
+                     self._part.shape[0])
+        pinned = control.pinned
+        free = ~pinned
+        mass = coeff.mass[:, None]
+        damp = coeff.damp[:, None]
+        g = control.gravity[None, :]
+        fa = control.f_applied
+        xn = x.copy()
+        vn = v.copy()
+        u = control.pin_velocity
+        diag = mass / dt ** 2 + damp / dt                           # (n,1)
+        y = xn + dt * vn + dt ** 2 * (fa / mass + g)
+        # the start: where the vertices would coast to (x + dt v), not y: y carries the
+        # whole applied force as if nothing resisted it, and a 10 N pull on one light
+        # vertex puts y metres away and the first residuals at 1e11 N
+        xk = np.where(free[:, None], xn + dt * vn, xn + dt * u)
+        scale = dt ** 2 / mass[:, 0]                        # force -> position under inertia
+        h = self.edge_length
+        f = self._f
+
+        def residual(xx, out_f):
+            self.internal_forces(xx, coeff, out_f)
+            r = mass / dt ** 2 * (xx - y) + damp / dt * (xx - xn) - out_f
+            r[pinned] = 0.0
+            return r
+
+        def potential(xx):
+            d = xx - y
+            e = xx - xn
+            return float(0.5 / dt ** 2 * np.sum(mass * d * d)
+                         + 0.5 / dt * np.sum(damp * e * e) + self._energy(coeff, xx))
+
+        rep = self.last
+        rep.iterations = rep.cg_iterations = rep.factorizations = 0
+        r = residual(xk, f)
+        rmax0 = float(np.max(np.linalg.norm(r, axis=1)))
+        # below this the residual is round-off (and the finite-difference products'
+        # error): 1e-8 of the largest force on a vertex, elastic, applied or weight
+        floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + np.linalg.norm(fa, axis=1)
+                                    + mass[:, 0] * np.linalg.norm(g)))
+        floor = max(floor, 1e-300)
+        rmax = rmax0
+        res = 1.0 if rmax0 > 0.0 else 0.0
+        r0 = np.linalg.norm(r)
+        phi = None
+        while (res > self.tolerance and rmax > floor
+               and rep.iterations < self.iterations):
+            if not np.isfinite(res):
+                return False
+            key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
+                   pinned.tobytes())
+            if self._pinv is None or self._pinv_key != key:
+                self._pinv, self._pinv_key = self._preconditioner(coeff, xk, diag, pinned), key
+                rep.factorizations += 1
+            eta = min(0.5, np.sqrt(np.linalg.norm(r) / r0))
+            p, used = self._cg(xk, f, r, diag, self._pinv, pinned, coeff, eta)
+            if used > self.refresh:              # P has drifted from A: factor it again
+                self._pinv = self._preconditioner(coeff, xk, diag, pinned)
+                rep.factorizations += 1
+            rep.cg_iterations += used
+            if phi is None:
+                phi = potential(xk)
+            slope = float(np.sum(r * p))
+            if not slope < 0.0:                  # not a descent direction: steepest descent
+                p = -self._pinv(r)
+                slope = float(np.sum(r * p))
+            alpha = 1.0
+            rt = None
+            for _ in range(30):
+                xt = xk + alpha * p
+                pt = potential(xt)
+                if np.isfinite(pt) and pt <= phi + 1e-4 * alpha * slope:
+                    break
+                if alpha == 1.0 and abs(pt - phi) <= 1e-11 * abs(phi):
+                    # the change is below Phi's round-off: judge the step by the residual
+                    rt = residual(xt, self._fq)
+                    if np.max(np.linalg.norm(rt, axis=1)) < rmax:
+                        f[:] = self._fq
+                        break
+                    rt = None
+                alpha *= 0.5
+            else:
+                break                            # no decrease even at 2^-30: stalled
+            xk = xt
+            phi = pt
+            r = rt if rt is not None else residual(xk, f)
+            rmax = float(np.max(np.linalg.norm(r, axis=1)))
+            res = rmax / rmax0
+            rep.iterations += 1
+        rep.residual = res
+        rep.converged = bool(res <= self.tolerance or rmax <= floor)
+        if not rep.converged:
+            rep.unconverged_steps += 1
+        if not np.all(np.isfinite(xk)):
+            return False
+        # the end of the step: velocities, the pins' reactions, the balance
+        vk = (xk - xn) / dt
+        vk[pinned] = u[pinned]
+        xk[pinned] = (xn + dt * u)[pinned]
+        if np.any(np.sum(vk * vk, axis=1) > vmax2):
+            return False
+        self.internal_forces(xk, coeff, f)
+        react = mass * (vk - vn) / dt - (f + fa + mass * g - damp * vk)
+        control.reaction[pinned] = react[pinned]
+        dx = dt * vk
+        work = float(np.sum((fa * dx)[free]) + np.sum((react * dx)[pinned]))
+        diss = float(np.sum((damp * vk * dx)[free]))
+        x[:] = xk
+        v[:] = vk
+        if control.obstacles.shape[0] > 0:
+            w, d = contact_range(0, len(x), x, v, control, coeff, dt)
+            work += w
+            diss += d
+        state.acc[0] += work
+        state.acc[1] += diss
+        return True
+
+    def _cg(self, xk, f, r, diag, pinv, pinned, coeff, eta):
+        """Truncated PCG for ``A p = -r`` (module docstring); returns (p, iterations)."""
+        fq = self._fq
+        b = -r
+        p = np.zeros_like(r)
+        z_r = b.copy()
+        z = pinv(z_r)
+        d = z.copy()
+        rz = float(np.sum(z_r * z))
+        bnorm = np.linalg.norm(b)
+        xscale = max(1.0, float(np.abs(xk).max()))
+        for k in range(self.cg_iterations):
+            dn = float(np.abs(d).max())
+            if dn == 0.0:
+                return p, k
+            eps = 1e-7 * xscale / dn
+            self.internal_forces(xk + eps * d, coeff, fq)
+            ad = diag * d - (fq - f) / eps
+            ad[pinned] = 0.0
+            curv = float(np.sum(d * ad))
+            if not curv > 0.0:                   # negative curvature (or NaN): stop here
+                return (p if k > 0 else d), k + 1
+            a = rz / curv
+            p += a * d
+            z_r -= a * ad
+            if np.linalg.norm(z_r) <= eta * bnorm:
+                return p, k + 1
+            z = pinv(z_r)
+            rz_new = float(np.sum(z_r * z))
+            d = z + (rz_new / rz) * d
+            rz = rz_new
+        return p, self.cg_iterations
