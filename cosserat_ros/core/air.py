@@ -55,7 +55,7 @@ import numpy as np
 from .compiled import kernel
 
 __all__ = ['Air', 'AIR_WIDTH', 'air_row', 'air_faces', 'air_gather', 'air_pass', 'air_forces',
-           'face_air_force']
+           'face_air_force', 'drag_blocks']
 
 #: columns of ``Control.air``
 AIR_WIDTH = 6
@@ -207,4 +207,36 @@ def air_forces(model, x: np.ndarray, v: np.ndarray, air, wind) -> np.ndarray:
         nrm - (c / so)[:, None] * uo)
     for k in range(3):
         np.add.at(out, f[ok, k], ff / 3.0)
+    return out
+
+
+def drag_blocks(model, x: np.ndarray, v: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Per-vertex blocks (n,3,3) [N s/m] of minus the drag's velocity derivative, for the
+    implicit solver (``solvers/implicit.py``), at positions x and velocities v with
+    ``Control.air`` row ``row``.
+
+    The drag of a face, ``f = -k A |u| (n . u) n`` (k = 1/2 rho C_D), has ``df/du = -k A
+    (|u| n n^T + (n . u) n u^T / |u|)``. Its symmetric positive semi-definite stand-in
+    ``D_t = k A (|u| + |n . u|) n n^T`` is exact for flow along the normal (``2 k A |u| n
+    n^T``) and across it (``k A |u| n n^T``). A corner takes a third of the force, and the
+    face's velocity is the mean of its corners', so row-sum lumping gives vertex i
+    ``D_i = sum over its faces of D_t / 3`` (exact for a sheet moving as a whole). The lift
+    (C_L) is left explicit.
+    """
+    f = model.faces.corners
+    out = np.zeros((len(x), 3, 3))
+    if row[0] == 0.0 or row[1] == 0.0:
+        return out
+    n2 = np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
+    nn = np.linalg.norm(n2, axis=1)
+    ok = nn > 0
+    u = v[f].mean(axis=1) - row[3:6]
+    s = np.linalg.norm(u, axis=1)
+    nrm = np.zeros_like(n2)
+    nrm[ok] = n2[ok] / nn[ok, None]
+    un = np.abs(np.einsum('ij,ij->i', nrm, u))
+    w = row[1] * 0.5 * nn * (s + un) / 3.0
+    blk = w[:, None, None] * np.einsum('ti,tj->tij', nrm, nrm)
+    for k in range(3):
+        np.add.at(out, f[:, k], blk)
     return out

@@ -45,9 +45,14 @@ compare with the explicit solver. The numerical dissipation is not in ``State.ac
 ``dissipated`` (which counts the damping force only), so the energy report's total drops
 by it.
 
-Air (``Control.air``) is applied as a force computed at the start of each step (its
-velocity derivative is not in A), contact (:func:`.update.contact_range`) runs after the
-solve as in the explicit update, on the step's start and end positions.
+Air (``Control.air``): its force at the start of the step, plus the drag's velocity
+derivative (``air.drag_blocks``: ``f_air(v') ~ f_air(v) - D (v' - v)``, D per vertex,
+symmetric positive semi-definite), so that the drag is implicit too: its term
+``(x' - x - dt v)^T D (x' - x - dt v) / (2 dt)`` joins Phi and ``D / dt`` joins A, and a
+strong wind does not force a small step (the explicit drag is unstable above ``dt ~ 2 mu
+/ (rho C_D |u|)``, 1/60 s for polyester at 20 m/s). The lift stays explicit. Contact
+(:func:`.update.contact_range`) runs after the solve as in the explicit update, on the
+step's start and end positions.
 
 ``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
 step's solve did (Newton iterations, CG iterations, residual, converged).
@@ -58,7 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..air import air_pass
+from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
 from ..terms import TERMS
 from .update import contact_range
@@ -120,6 +125,8 @@ class ImplicitSolver:
         self._f = np.zeros((n, 3))
         self._fq = np.zeros((n, 3))
         self._csc = None
+        self._drag = None
+        self._dt = 0.0
         self._pinv = None
         self._pinv_key = None
         #: CG iterations above which the factored preconditioner is rebuilt
@@ -171,6 +178,8 @@ class ImplicitSolver:
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
+        if self._drag is not None:
+            blocks += self._drag / self._dt
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
@@ -215,6 +224,10 @@ class ImplicitSolver:
         vn = v.copy()
         u = control.pin_velocity
         diag = mass / dt ** 2 + damp / dt                           # (n,1)
+        # the drag linearised about the step's start: f_air(v') ~ f_air(v) - D (v' - v)
+        drag = drag_blocks(m, xn, vn, control.air) if control.air[0] != 0.0 else None
+        self._drag = drag
+        self._dt = dt
         y = xn + dt * vn + dt ** 2 * (fa / mass + g)
         # the start: where the vertices would coast to (x + dt v), not y: y carries the
         # whole applied force as if nothing resisted it, and a 10 N pull on one light
@@ -227,14 +240,20 @@ class ImplicitSolver:
         def residual(xx, out_f):
             self.internal_forces(xx, coeff, out_f)
             r = mass / dt ** 2 * (xx - y) + damp / dt * (xx - xn) - out_f
+            if drag is not None:
+                r += np.einsum('nij,nj->ni', drag, (xx - xn) / dt - vn)
             r[pinned] = 0.0
             return r
 
         def potential(xx):
             d = xx - y
             e = xx - xn
-            return float(0.5 / dt ** 2 * np.sum(mass * d * d)
-                         + 0.5 / dt * np.sum(damp * e * e) + self._energy(coeff, xx))
+            phi_ = (0.5 / dt ** 2 * np.sum(mass * d * d) + 0.5 / dt * np.sum(damp * e * e)
+                    + self._energy(coeff, xx))
+            if drag is not None:
+                q = e - dt * vn
+                phi_ += 0.5 / dt * float(np.einsum('ni,nij,nj->', q, drag, q))
+            return float(phi_)
 
         rep = self.last
         rep.iterations = rep.cg_iterations = rep.factorizations = 0
@@ -254,7 +273,7 @@ class ImplicitSolver:
             if not np.isfinite(res):
                 return False
             key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
-                   pinned.tobytes())
+                   pinned.tobytes(), drag is None)
             if self._pinv is None or self._pinv_key != key:
                 self._pinv, self._pinv_key = self._preconditioner(coeff, xk, diag, pinned), key
                 rep.factorizations += 1
@@ -306,6 +325,8 @@ class ImplicitSolver:
         if np.any(np.sum(vk * vk, axis=1) > vmax2):
             return False
         self.internal_forces(xk, coeff, f)
+        if drag is not None:                     # the applied force the step used
+            fa = fa - np.einsum('nij,nj->ni', drag, vk - vn)
         react = mass * (vk - vn) / dt - (f + fa + mass * g - damp * vk)
         control.reaction[pinned] = react[pinned]
         dx = dt * vk
@@ -339,6 +360,8 @@ class ImplicitSolver:
             eps = 1e-7 * xscale / dn
             self.internal_forces(xk + eps * d, coeff, fq)
             ad = diag * d - (fq - f) / eps
+            if self._drag is not None:
+                ad += np.einsum('nij,nj->ni', self._drag, d) / self._dt
             ad[pinned] = 0.0
             curv = float(np.sum(d * ad))
             if not curv > 0.0:                   # negative curvature (or NaN): stop here
