@@ -99,3 +99,16 @@ def test_air_scene_is_the_flag_with_and_without_air():
     c = on.control
     assert (c.f_applied - c.f_external)[:, 0].sum() > 0        # the wind pushes downwind
     assert np.array_equal(off.control.f_applied, off.control.f_external)
+
+
+def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
+    from cosserat_ros.tools.bench import implicit_scene, ISSUE6, part_implicit, STIFF
+    im, ex = implicit_scene(6, STIFF, 'implicit'), implicit_scene(6, STIFF, 'explicit')
+    assert im.solver_kind == 'implicit' and im.dt == 1.0 / 60.0
+    assert ex.solver_kind == 'explicit' and ex.dt == pytest.approx(0.9 * ex.critical_dt())
+    assert STIFF.youngs_2d == 2e3 and ISSUE6.youngs_2d == 500.0
+    assert np.array_equal(im.pinned, ex.pinned) and im.pinned.sum() == 24
+    part_implicit([6], budget_s=0.05)
+    rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| issue6')
+            or l.startswith('| stiff')]
+    assert len(rows) == 2 and all(float(r.split('|')[6]) > 0 for r in rows)   # RTF

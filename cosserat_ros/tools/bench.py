@@ -552,6 +552,53 @@ def part_node(watch_s: float):
               '| |', flush=True)
 
 
+#: the issue-26 sweep's stiff sheet: issue 6's, with E h = 2e3 N/m
+STIFF = peer.Scene('stiff', 2e3, 1e-4, 0.1, 0.0, 0.0, 'boundary')
+
+
+def implicit_scene(n: int, scene: peer.Scene, solver: str) -> ClothSimulator:
+    """A benchmark sheet on ``solver``: the implicit one at 1/60 s, the explicit one at
+    DT_FRACTION of its critical dt."""
+    mesh = grid_mesh(n, n)
+    sim = ClothSimulator(mesh, scene_material(scene), dt=1.0 / 60.0, check_dt=False,
+                         solver=solver)
+    sim.pin(scene_pins(mesh, scene))
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    if solver == 'explicit':
+        sim.dt = DT_FRACTION * sim.critical_dt()
+    return sim
+
+
+def part_implicit(sizes, budget_s: float = 4.0):
+    print('\n## implicit solver at 1/60 s against the explicit one at 0.9 of its critical '
+          'dt\n')
+    print('Each sheet falls from flat (pins and gravity as in part 1); timed over its first '
+          f'~{budget_s:g} s of wall time (at least 3 steps) after 2 steps: the fall is the '
+          'hard part for Newton. MuJoCo discrete at 1/60 s on issue6: part 1.\n')
+    _table(('scene', 'N', 'explicit ms/step', 'explicit RTF', 'implicit ms/step',
+            'implicit RTF', 'Newton its/step', 'CG its/step', 'unconverged steps'))
+    for scene in (ISSUE6, STIFF):
+        for n in sizes:
+            ex = implicit_scene(n, scene, 'explicit')
+            ex.step(10)
+            k = _batch_size(ex.step, 0.3, 0.5)
+            t = time.perf_counter()
+            ex.step(k)
+            tex = (time.perf_counter() - t) / k
+            im = implicit_scene(n, scene, 'implicit')
+            im.step(2)
+            steps = its = cg = 0
+            t = time.perf_counter()
+            while steps < 3 or time.perf_counter() - t < budget_s:
+                im.step(1)
+                r = im.solve_report
+                steps, its, cg = steps + 1, its + r['iterations'], cg + r['cg_iterations']
+            tim = (time.perf_counter() - t) / steps
+            print(f'| {scene.name} | {n} | {tex * 1e3:.3f} | {ex.dt / tex:.2f} | '
+                  f'{tim * 1e3:.1f} | {im.dt / tim:.2f} | {its / steps:.1f} | '
+                  f'{cg / steps:.1f} | {im.solve_report["unconverged_steps"]} |', flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description='Step cost of the cloth simulator, beside '
                                  'MuJoCo flex, and the node start-up and real-time factor.')
@@ -568,6 +615,8 @@ def main(argv=None):
                     help='N for the contact part (none: skip it)')
     ap.add_argument('--air-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the air part (none: skip it)')
+    ap.add_argument('--implicit-sizes', type=int, nargs='*', default=[20, 40, 80],
+                    help='N for the implicit-solver part (none: skip it)')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
@@ -582,6 +631,8 @@ def main(argv=None):
         part_contact(a.contact_sizes)
     if a.air_sizes:
         part_air(a.air_sizes)
+    if a.implicit_sizes:
+        part_implicit(a.implicit_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')
