@@ -117,9 +117,6 @@ class ImplicitSolver:
         self.tolerance = tolerance
         self.cg_iterations = cg_iterations
         n = model.n_vertices
-        e = model.mesh.edges
-        x0 = model.mesh.vertices
-        self.edge_length = float(np.linalg.norm(x0[e[:, 0]] - x0[e[:, 1]], axis=1).mean())
         self.last = SolveReport()
         self._part = np.zeros((-(-n // VERTEX_CHUNK), 3))
         self._f = np.zeros((n, 3))
@@ -233,8 +230,6 @@ class ImplicitSolver:
         # whole applied force as if nothing resisted it, and a 10 N pull on one light
         # vertex puts y metres away and the first residuals at 1e11 N
         xk = np.where(free[:, None], xn + dt * vn, xn + dt * u)
-        scale = dt ** 2 / mass[:, 0]                        # force -> position under inertia
-        h = self.edge_length
         f = self._f
 
         def residual(xx, out_f):

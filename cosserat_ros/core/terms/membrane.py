@@ -183,6 +183,30 @@ def add_gradient(x, faces, dinv, face_area, vf_ptr, vf_face, vf_corner, zeta, gr
         grad[j, 2] += g2
 
 
+@kernel(inline='always')
+def _positive_stress(s11, s12, s22):
+    """The positive part of the symmetric 2x2 S = (s11, s12, s22)."""
+    tr = 0.5 * (s11 + s22)
+    rad = np.sqrt(0.25 * (s11 - s22) ** 2 + s12 * s12)
+    l1 = tr + rad
+    l2 = tr - rad
+    if l2 >= 0.0:
+        return s11, s12, s22
+    if l1 <= 0.0:
+        return 0.0, 0.0, 0.0
+    if s12 != 0.0:              # l1 v v^T with v the eigenvector of l1
+        v0 = l1 - s22
+        v1 = s12
+    elif s11 >= s22:
+        v0 = 1.0
+        v1 = 0.0
+    else:
+        v0 = 0.0
+        v1 = 1.0
+    nv = v0 * v0 + v1 * v1
+    return l1 * v0 * v0 / nv, l1 * v0 * v1 / nv, l1 * v1 * v1 / nv
+
+
 @kernel(parallel=True)
 def add_hessian_blocks(x, faces, dinv, face_area, vf_ptr, vf_face, vf_corner, zeta, psd, out):
     """out[j] += d2E_m/dx_j2 (n,3,3) over j's incident faces (module docstring, *Hessian
@@ -197,29 +221,7 @@ def add_hessian_blocks(x, faces, dinv, face_area, vf_ptr, vf_face, vf_corner, ze
             area = face_area[t]
             s11, s12, s22 = stress_times_area(area * 2.0 * zeta, e11, e12, e22)
             if psd:     # positive part of the symmetric 2x2 S
-                tr = 0.5 * (s11 + s22)
-                rad = np.sqrt(0.25 * (s11 - s22) ** 2 + s12 * s12)
-                l1 = tr + rad
-                l2 = tr - rad
-                if l2 < 0.0:
-                    if l1 <= 0.0:
-                        s11 = 0.0
-                        s12 = 0.0
-                        s22 = 0.0
-                    else:   # l1 v v^T with v the eigenvector of l1
-                        if s12 != 0.0:
-                            v0 = l1 - s22
-                            v1 = s12
-                        elif s11 >= s22:
-                            v0 = 1.0
-                            v1 = 0.0
-                        else:
-                            v0 = 0.0
-                            v1 = 1.0
-                        nv = v0 * v0 + v1 * v1
-                        s11 = l1 * v0 * v0 / nv
-                        s12 = l1 * v0 * v1 / nv
-                        s22 = l1 * v1 * v1 / nv
+                s11, s12, s22 = _positive_stress(s11, s12, s22)
             geo = a * (s11 * a + s12 * b) + b * (s12 * a + s22 * b)
             for k in range(3):
                 h[k, k] += geo
@@ -270,30 +272,6 @@ def hessian_blocks(model, coeff, x: np.ndarray, psd: bool = True) -> np.ndarray:
                        psd, h)
     return h
 
-
-
-@kernel(inline='always')
-def _positive_stress(s11, s12, s22):
-    """The positive part of the symmetric 2x2 S = (s11, s12, s22)."""
-    tr = 0.5 * (s11 + s22)
-    rad = np.sqrt(0.25 * (s11 - s22) ** 2 + s12 * s12)
-    l1 = tr + rad
-    l2 = tr - rad
-    if l2 >= 0.0:
-        return s11, s12, s22
-    if l1 <= 0.0:
-        return 0.0, 0.0, 0.0
-    if s12 != 0.0:              # l1 v v^T with v the eigenvector of l1
-        v0 = l1 - s22
-        v1 = s12
-    elif s11 >= s22:
-        v0 = 1.0
-        v1 = 0.0
-    else:
-        v0 = 0.0
-        v1 = 1.0
-    nv = v0 * v0 + v1 * v1
-    return l1 * v0 * v0 / nv, l1 * v0 * v1 / nv, l1 * v1 * v1 / nv
 
 
 @kernel(parallel=True)
