@@ -102,8 +102,9 @@ def test_air_scene_is_the_flag_with_and_without_air():
 
 
 def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
-    from cosserat_ros.tools.bench import implicit_scene, ISSUE6, part_implicit, STIFF
-    im, ex = implicit_scene(6, STIFF, 'implicit'), implicit_scene(6, STIFF, 'explicit')
+    from cosserat_ros.tools.bench import ISSUE6, part_implicit, scene_simulator, STIFF
+    im = scene_simulator(6, scene=STIFF, solver='implicit')
+    ex = scene_simulator(6, scene=STIFF)
     assert im.solver_kind == 'implicit' and im.dt == 1.0 / 60.0
     assert ex.solver_kind == 'explicit' and ex.dt == pytest.approx(0.9 * ex.critical_dt())
     assert STIFF.youngs_2d == 2e3 and ISSUE6.youngs_2d == 500.0

@@ -53,6 +53,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
+from .material import finite_non_negative
 
 __all__ = ['Air', 'AIR_WIDTH', 'air_row', 'air_faces', 'air_gather', 'air_pass', 'air_forces',
            'face_air_force', 'drag_blocks']
@@ -77,13 +78,8 @@ class Air:
 
     def __post_init__(self):
         for name in ('density', 'drag', 'lift'):
-            val = getattr(self, name)
-            if isinstance(val, bool) or not isinstance(val, (int, float, np.floating,
-                                                             np.integer)):
-                raise ValueError(f'air.{name} must be a number, got {val!r}')
-            if not math.isfinite(val) or val < 0:
-                raise ValueError(f'air.{name} must be finite and not negative, got {val!r}')
-            object.__setattr__(self, name, float(val))
+            object.__setattr__(self, name,
+                               finite_non_negative(getattr(self, name), 'air.' + name))
 
 
 def air_row(air, wind) -> np.ndarray:

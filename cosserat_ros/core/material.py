@@ -45,6 +45,16 @@ from .compiled import kernel
 __all__ = ['Material', 'material_tensor', 'bilinear', 'bilinear_forms', 'contract']
 
 
+def finite_non_negative(val, name: str) -> float:
+    """``val`` as a float if it is a finite, non-negative number (not a bool), else
+    ``ValueError`` naming ``name``."""
+    if isinstance(val, bool) or not isinstance(val, (int, float, np.floating, np.integer)):
+        raise ValueError(f'{name} must be a number, got {val!r}')
+    if not math.isfinite(val) or val < 0:
+        raise ValueError(f'{name} must be finite and not negative, got {val!r}')
+    return float(val)
+
+
 @dataclass(frozen=True)
 class Material:
     """Material constants in SI units (see the module table). Validated on construction.
@@ -123,11 +133,7 @@ class Material:
         vals = {'areal_density': areal_density, 'tensile_stiffness': tensile_stiffness,
                 'poisson_ratio': poisson_ratio, 'bending_rigidity': bending_rigidity}
         for name, val in vals.items():
-            if isinstance(val, bool) or not isinstance(val, (int, float, np.floating,
-                                                             np.integer)):
-                raise ValueError(f'{name} must be a number, got {val!r}')
-            if not math.isfinite(val) or val < 0:
-                raise ValueError(f'{name} must be finite and not negative, got {val!r}')
+            finite_non_negative(val, name)
         for name in ('areal_density', 'tensile_stiffness', 'bending_rigidity'):
             if vals[name] == 0:
                 raise ValueError(f'{name} must be positive, got 0')

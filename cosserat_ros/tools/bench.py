@@ -83,13 +83,17 @@ def scene_pins(mesh, scene: peer.Scene) -> np.ndarray:
     return pin_set(mesh, scene.pins)
 
 
-def scene_simulator(n: int, damping=None, scene: peer.Scene = ISSUE6) -> ClothSimulator:
-    """A benchmark sheet, pinned and under gravity, at DT_FRACTION of its critical dt."""
+def scene_simulator(n: int, damping=None, scene: peer.Scene = ISSUE6,
+                    solver: str = 'explicit') -> ClothSimulator:
+    """A benchmark sheet, pinned and under gravity: on the explicit solver at DT_FRACTION
+    of its critical dt, on the implicit one at 1/60 s."""
     mesh = grid_mesh(n, n)
-    sim = ClothSimulator(mesh, scene_material(scene, damping), dt=1e-5, check_dt=False)
+    sim = ClothSimulator(mesh, scene_material(scene, damping), dt=1.0 / 60.0,
+                         check_dt=False, solver=solver)
     sim.pin(scene_pins(mesh, scene))
     sim.gravity = (0.0, 0.0, -peer.GRAVITY)
-    sim.dt = DT_FRACTION * sim.critical_dt()
+    if solver == 'explicit':
+        sim.dt = DT_FRACTION * sim.critical_dt()
     return sim
 
 
@@ -556,19 +560,6 @@ def part_node(watch_s: float):
 STIFF = peer.Scene('stiff', 2e3, 1e-4, 0.1, 0.0, 0.0, 'boundary')
 
 
-def implicit_scene(n: int, scene: peer.Scene, solver: str) -> ClothSimulator:
-    """A benchmark sheet on ``solver``: the implicit one at 1/60 s, the explicit one at
-    DT_FRACTION of its critical dt."""
-    mesh = grid_mesh(n, n)
-    sim = ClothSimulator(mesh, scene_material(scene), dt=1.0 / 60.0, check_dt=False,
-                         solver=solver)
-    sim.pin(scene_pins(mesh, scene))
-    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
-    if solver == 'explicit':
-        sim.dt = DT_FRACTION * sim.critical_dt()
-    return sim
-
-
 def part_implicit(sizes, budget_s: float = 4.0):
     print('\n## implicit solver at 1/60 s against the explicit one at 0.9 of its critical '
           'dt\n')
@@ -579,13 +570,13 @@ def part_implicit(sizes, budget_s: float = 4.0):
             'implicit RTF', 'Newton its/step', 'CG its/step', 'unconverged steps'))
     for scene in (ISSUE6, STIFF):
         for n in sizes:
-            ex = implicit_scene(n, scene, 'explicit')
+            ex = scene_simulator(n, scene=scene)
             ex.step(10)
             k = _batch_size(ex.step, 0.3, 0.5)
             t = time.perf_counter()
             ex.step(k)
             tex = (time.perf_counter() - t) / k
-            im = implicit_scene(n, scene, 'implicit')
+            im = scene_simulator(n, scene=scene, solver='implicit')
             im.step(2)
             steps = its = cg = 0
             t = time.perf_counter()

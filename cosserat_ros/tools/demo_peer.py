@@ -13,7 +13,16 @@ import time
 
 import numpy as np
 
-__all__ = ['DemoPeer', 'parse']
+__all__ = ['DemoPeer', 'parser', 'parse']
+
+
+def parser(prog: str, doc: str) -> argparse.ArgumentParser:
+    """The demos' command line: ``--node`` (whose topics, default cloth_node) and
+    ``--wait`` (seconds to wait for it); the demo adds its own."""
+    ap = argparse.ArgumentParser(prog=prog, description=doc.split('\n')[0])
+    ap.add_argument('--node', default='cloth_node')
+    ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
+    return ap
 
 
 def parse(ap: argparse.ArgumentParser, argv=None) -> argparse.Namespace:

@@ -20,7 +20,6 @@ flag, at 0.4-2.1 Hz.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -45,12 +44,10 @@ def gust(t: float, speed: float) -> np.ndarray:
 
 def main(argv=None) -> int:
     from geometry_msgs.msg import Vector3Stamped
-    from .demo_peer import DemoPeer, parse
-    ap = argparse.ArgumentParser(prog='flag_demo', description=__doc__.split('\n')[0])
-    ap.add_argument('--node', default='cloth_node')
+    from .demo_peer import DemoPeer, parse, parser
+    ap = parser('flag_demo', __doc__)
     ap.add_argument('--speed', type=float, default=6.0, help='mean wind speed [m/s]')
     ap.add_argument('--duration', type=float, default=10.0, help='seconds of wind')
-    ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
     a = parse(ap, argv)
     peer = DemoPeer('flag_demo', a.node, argv)
     wind = peer.node.create_publisher(Vector3Stamped, f'{peer.base}/wind', 10)

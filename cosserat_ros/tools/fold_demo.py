@@ -16,7 +16,6 @@ simulation time, read from ``~/points``, so a node slower than real time gets th
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -44,12 +43,10 @@ def fold_path(s: float, start: np.ndarray, end_x: float):
 def main(argv=None) -> int:
     from geometry_msgs.msg import PoseStamped
     from std_srvs.srv import SetBool
-    from .demo_peer import DemoPeer, parse
-    ap = argparse.ArgumentParser(prog='fold_demo', description=__doc__.split('\n')[0])
-    ap.add_argument('--node', default='cloth_node')
+    from .demo_peer import DemoPeer, parse, parser
+    ap = parser('fold_demo', __doc__)
     ap.add_argument('--duration', type=float, default=4.0, help='seconds of the carry')
     ap.add_argument('--settle', type=float, default=2.0, help='seconds after release')
-    ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
     a = parse(ap, argv)
     peer = DemoPeer('fold_demo', a.node, argv)
     node, base = peer.node, peer.base

@@ -122,8 +122,6 @@ class ImplicitSolver:
         self._f = np.zeros((n, 3))
         self._fq = np.zeros((n, 3))
         self._csc = None
-        self._drag = None
-        self._dt = 0.0
         self._pinv = None
         self._pinv_key = None
         #: CG iterations above which the factored preconditioner is rebuilt
@@ -159,10 +157,12 @@ class ImplicitSolver:
             self._csc = (rows, cols, inv, len(uniq), indices, indptr)
         return self._csc
 
-    def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, pinned: np.ndarray):
+    def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, drag_dt,
+                        pinned: np.ndarray):
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
-        + c / dt) I + the membrane's whole Hessian (positive part,
-        ``membrane.face_hessians``) + the bending and coupling diagonal blocks, with the
+        + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
+        whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
+        coupling diagonal blocks, with the
         pinned rows and columns replaced by the identity; factored by SuperLU."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
@@ -175,8 +175,8 @@ class ImplicitSolver:
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
-        if self._drag is not None:
-            blocks += self._drag / self._dt
+        if drag_dt is not None:
+            blocks += drag_dt
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
@@ -223,8 +223,7 @@ class ImplicitSolver:
         diag = mass / dt ** 2 + damp / dt                           # (n,1)
         # the drag linearised about the step's start: f_air(v') ~ f_air(v) - D (v' - v)
         drag = drag_blocks(m, xn, vn, control.air) if control.air[0] != 0.0 else None
-        self._drag = drag
-        self._dt = dt
+        drag_dt = None if drag is None else drag / dt
         y = xn + dt * vn + dt ** 2 * (fa / mass + g)
         # the start: where the vertices would coast to (x + dt v), not y: y carries the
         # whole applied force as if nothing resisted it, and a 10 N pull on one light
@@ -270,12 +269,13 @@ class ImplicitSolver:
             key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
                    pinned.tobytes(), drag is None)
             if self._pinv is None or self._pinv_key != key:
-                self._pinv, self._pinv_key = self._preconditioner(coeff, xk, diag, pinned), key
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, pinned)
+                self._pinv_key = key
                 rep.factorizations += 1
             eta = min(0.5, np.sqrt(np.linalg.norm(r) / r0))
-            p, used = self._cg(xk, f, r, diag, self._pinv, pinned, coeff, eta)
+            p, used = self._cg(xk, f, r, diag, drag_dt, self._pinv, pinned, coeff, eta)
             if used > self.refresh:              # P has drifted from A: factor it again
-                self._pinv = self._preconditioner(coeff, xk, diag, pinned)
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, pinned)
                 rep.factorizations += 1
             rep.cg_iterations += used
             if phi is None:
@@ -337,7 +337,7 @@ class ImplicitSolver:
         state.acc[1] += diss
         return True
 
-    def _cg(self, xk, f, r, diag, pinv, pinned, coeff, eta):
+    def _cg(self, xk, f, r, diag, drag_dt, pinv, pinned, coeff, eta):
         """Truncated PCG for ``A p = -r`` (module docstring); returns (p, iterations)."""
         fq = self._fq
         b = -r
@@ -355,8 +355,8 @@ class ImplicitSolver:
             eps = 1e-7 * xscale / dn
             self.internal_forces(xk + eps * d, coeff, fq)
             ad = diag * d - (fq - f) / eps
-            if self._drag is not None:
-                ad += np.einsum('nij,nj->ni', self._drag, d) / self._dt
+            if drag_dt is not None:
+                ad += np.einsum('nij,nj->ni', drag_dt, d)
             ad[pinned] = 0.0
             curv = float(np.sum(d * ad))
             if not curv > 0.0:                   # negative curvature (or NaN): stop here
