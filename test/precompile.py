@@ -33,6 +33,8 @@ def main():
     s.add_obstacle('mesh', vertices=ico.vertices, faces=ico.faces, center=(0, 0, -1))
     s.step(1)
     s.contact_forces()
+    from cosserat_ros.core.self_contact import warm
+    warm()                                       # self-collision's kernels
     for phi in (0.0, 1e-6):                      # the implicit solver's kernels
         s = _sim(6, phi, solver='implicit')
         s.dt = 1.0 / 60.0

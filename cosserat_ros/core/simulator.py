@@ -40,6 +40,7 @@ from .mesh import ClothMesh
 from .model import Model
 from .handles import HandleSet
 from .obstacles import ObstacleSet
+from .self_contact import SelfCollision
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
 from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
@@ -131,6 +132,9 @@ class ClothSimulator:
         self.control = Control.empty(n, faces=mesh.n_faces)
         self._obstacles = ObstacleSet()
         self._handles = HandleSet()
+        self._self: Optional[SelfCollision] = None     # built when first switched on
+        self._self_on = False
+        self._self_friction = None
         self._user_pins = np.zeros(n, dtype=bool)
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
@@ -406,6 +410,9 @@ class ClothSimulator:
             return
         backup = self.state.copy()
         cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
+        if self._self_on:
+            self._self.begin(self.state.x, self.state.v)
+            cap = 1                        # the response follows every step
         if cap == 0 and not len(self._handles):
             done = self.solver.step(n, self.state, self.control, self.coefficients,
                                     self._dt, self._vmax ** 2)
@@ -442,6 +449,13 @@ class ClothSimulator:
             self._handles.prescribe(self.state.x, t, self._dt, k, self.control.pin_velocity)
             got = self.solver.step(k, self.state, self.control, self.coefficients,
                                    self._dt, self._vmax ** 2)
+            if got == k and self._self_on:
+                removed = self._self.after_step(self.state, self.control, self.coefficients,
+                                                self._dt)
+                if not math.isfinite(removed):
+                    got = 0                # a non-finite response: the step diverged
+                else:
+                    self.state.acc[1] += removed
             done += got
             if got < k:
                 break
@@ -583,6 +597,54 @@ class ClothSimulator:
     @contact_thickness.setter
     def contact_thickness(self, value: float):
         self.control.contact_params[0] = self._check_positive(value, 'contact_thickness')
+
+    # ------------------------------------------------------------------ self-collision
+    @property
+    def self_collision(self) -> bool:
+        """Whether the cloth collides with itself (:mod:`.self_contact`; default False):
+        vertex-triangle and edge-edge pairs kept :attr:`contact_thickness` apart, with
+        friction :attr:`self_friction` between the layers. It costs a response after
+        every step (docs/performance.md)."""
+        return self._self_on
+
+    @self_collision.setter
+    def self_collision(self, on):
+        if not isinstance(on, (bool, np.bool_)):
+            raise ValueError(f'self_collision must be True or False, got {on!r}')
+        if on and self._self is None:
+            self._self = SelfCollision(self.mesh.vertices, self.mesh.faces, self.mesh.edges)
+            if self._self_friction is not None:
+                self._self.friction = self._self_friction
+        self._self_on = bool(on)
+
+    @property
+    def self_friction(self) -> float:
+        """Coulomb friction coefficient between two layers of the cloth (default 0.5)."""
+        if self._self_friction is None:
+            from .self_contact import DEFAULT_FRICTION
+            return DEFAULT_FRICTION
+        return self._self_friction
+
+    @self_friction.setter
+    def self_friction(self, mu: float):
+        try:
+            mu = float(mu)
+        except (TypeError, ValueError):
+            raise ValueError(f'self_friction must be a number, got {mu!r}') from None
+        if not (math.isfinite(mu) and mu >= 0):
+            raise ValueError(f'self_friction must be finite and >= 0, got {mu!r}')
+        self._self_friction = mu
+        if self._self is not None:
+            self._self.friction = mu
+
+    def self_contact_state(self) -> Dict[str, float]:
+        """The last step's self-contact (:meth:`.self_contact.SelfCollision.report`):
+        ``candidates``, ``live``, ``active`` (pairs the response moved), ``left_short``,
+        ``closest_gap`` [m], ``builds``; zeros while self-collision is off."""
+        if self._self is None or not self._self_on:
+            return {'candidates': 0, 'live': 0, 'active': 0, 'rounds': 0, 'sweeps': 0,
+                    'left_short': 0, 'closest_gap': math.inf, 'builds': 0}
+        return self._self.report()
 
     def _sync_obstacles(self) -> None:
         o = self._obstacles

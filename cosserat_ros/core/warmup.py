@@ -157,6 +157,9 @@ def _compile(tiled: bool, coupled: bool):
     from .solvers.update import contact_range
     contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v, sim.control,
                   sim.coefficients, sim.dt)
+    # self-collision's kernels (called from Python after each step: none is inlined)
+    from .self_contact import warm
+    warm()
     # what the node's commands call: the closest point of ~/point_forces, the distance
     # field of a mesh obstacle from ~/obstacles
     from .contact import mesh_distance_field

@@ -182,6 +182,8 @@ class ClothNode(Node):
             self.sim.pin(pins)
         self.frame_id = p['frame_id']
         self.sim.contact_thickness = p['contact.thickness']
+        self.sim.self_friction = p['contact.self_friction']
+        self.sim.self_collision = bool(p['contact.self'])
         self._wrench_pubs: Dict[int, object] = {}
         self._marker_seen: Dict[int, Tuple[float, np.ndarray, np.ndarray]] = {}
         self._declared_obstacles(p['obstacles.names'])
@@ -891,6 +893,10 @@ class ClothNode(Node):
                 self._status_period = val
             elif name == 'contact.thickness':
                 self.sim.contact_thickness = val
+            elif name == 'contact.self':
+                self.sim.self_collision = bool(val)
+            elif name == 'contact.self_friction':
+                self.sim.self_friction = val
             elif name == 'handles.max_speed':
                 self._max_handle_speed = val
         if changed_material:
@@ -1092,6 +1098,12 @@ class ClothNode(Node):
             cs = self.sim.contact_state()
             vals['contacts'] = cs['contacts']
             vals['deepest_penetration_m'] = float(cs['deepest'])
+        if self.sim.self_collision:
+            sc = self.sim.self_contact_state()
+            vals['self_pairs_active'] = sc['active']
+            vals['self_pairs_live'] = sc['live']
+            vals['self_pairs_short'] = sc['left_short']
+            vals['self_closest_gap_m'] = float(sc['closest_gap'])
         vals.update({f'rejected_{k}': v for k, v in self.rejected.items()})
         return self._status(f'{self.get_name()}: simulation', level, msg, vals)
 

@@ -31,7 +31,7 @@ MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
 AIR_KEYS = ('density', 'drag', 'lift')
 #: run-time parameters that must be non-negative floats
 RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period',
-                  'max_wind')
+                  'max_wind', 'contact.self_friction')
 #: the run-time parameters an ``observe_only`` node still lets change (they touch only how
 #: it draws and logs, not the physics or what it accepts)
 OBSERVER_RUNTIME = ('coloring', 'wireframe', 'status_period')
@@ -123,6 +123,11 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                  fp=_fp(0.0, 3600.0))),
     'contact.thickness': (0.002, _desc('Distance the cloth keeps from every obstacle [m]',
                                        fp=_fp(1e-5, 0.1))),
+    'contact.self': (False, _desc('Self-collision: the cloth keeps contact.thickness from '
+                                  'itself (vertex-triangle and edge-edge) and never passes '
+                                  'through; costs a response after every step')),
+    'contact.self_friction': (0.5, _desc('Coulomb friction coefficient between two layers '
+                                         'of the cloth [-]', fp=_fp(0.0, 100.0))),
     'handles.names': ([''], _desc('Grasp handles, each with ~/handles/<name>/grasp, '
                                   '/target and /wrench; handles.<name>.radius [m] and '
                                   "handles.<name>.break_force [N] (0 = none); [''] for none",

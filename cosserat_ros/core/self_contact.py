@@ -1,0 +1,850 @@
+"""Self-collision: the cloth folds onto itself without passing through.
+
+Contacts
+--------
+Two kinds of pair, each within the contact thickness ``th`` (the same as obstacle
+contact's, ``Control.contact_params[0]``):
+
+* vertex-triangle: vertex i and a triangle (a, b, c) that does not hold i, closest point
+  ``q = u x_a + v x_b + w x_c`` (Ericson 5.1.5, :func:`.surface_query.point_triangle_sq`);
+* edge-edge: edges (a0, a1) and (b0, b1) that share no vertex, closest points
+  ``p = (1 - s) x_a0 + s x_a1`` and ``q = (1 - t) x_b0 + t x_b1`` (Ericson 5.1.9,
+  :func:`segment_segment`).
+
+Pairs that lie within ``th`` of each other in the rest shape (a sliver triangle's vertex
+next to its neighbour) are topology, not contact, and are left out.
+
+Both are one constraint on up to four vertices k with weights ``w_k`` (side A positive,
+side B negative: (1, -u, -v, -w) and (1 - s, s, -(1 - t), -t)), the unit normal ``n``
+from B to A and the distance d, all taken at the positions ``x0`` where the step began::
+
+    g = d + n . sum_k w_k (x_k - x0_k)          the gap at the step's end, to first order
+
+Response: inelastic, on positions and velocities together (Bridson, Fedkiw and Anderson
+2002, Sec. 7.1-7.2, as a Gauss-Seidel projection)
+-----------------------------------------------------------------------------------
+After every step (explicit or implicit) each pair must end with ``g >= target`` where
+``target = th`` for a pair that began outside the layer and ``d + min(th - d, S dt)``
+for one that began inside it (back to the layer at most at the speed :data:`SEP_SPEED`;
+drift of second order, never a kick). A pair short of its target gets the impulse that
+closes the gap exactly, shared by inverse mass (a pinned or held vertex has none)::
+
+    lam  = (target - g) / W,     W = sum_k w_k^2 / m_k
+    dx_k = w_k lam n / m_k                      (x_k += dx_k,  v_k += dx_k / dt)
+
+which conserves momentum (sum_k m_k dx_k = lam n sum_k w_k = 0 since the weights of
+each side sum to one) and removes the pair's approach velocity (inelastic). Coulomb
+friction between the layers follows on the pair's relative tangential motion of the
+step ``r_t = (I - n n^T) sum_k w_k (x_k - x0_k)``: it stops if ``|r_t| <= mu (target -
+g)`` (static: the tangential correction bounded by mu times the normal one, in the same
+units) and is otherwise reduced by that much. Pairs share vertices, so the corrections
+are swept (Gauss-Seidel) over the pairs that were short until none moves, at most
+:data:`SWEEPS` sweeps, then every live pair is checked again and the rounds repeat (at
+most :data:`ROUNDS`; what is still short by more than :data:`SLACK` of th is reported
+and kept from approaching further by the next step). A vertex the response pushes into
+an obstacle's contact layer is put back on it at once (position and velocity, the
+obstacle's impulse added to its contact force), so a layer pressed onto the ground stays
+on it and the ground carries the weight of both.
+
+Sliding contacts: the gap above is linear in the step's displacement, so a vertex sliding
+over a curved or kinked layer sees it drift by about ``|slip|^2 / d`` a step, and a pair
+inside the layer may only stop approaching (its target is its own gap). Whenever a live
+pair began the step within ``th``, the response therefore runs once more from the exact
+geometry at the step's end (closest points and normals at x; friction already applied),
+so such a pair climbs back to ``th`` at :data:`SEP_SPEED` instead of creeping through.
+
+Energy: the response removes the energy :func:`_ledger` measures (kinetic, and the
+potential change over its displacement), counted as dissipation in ``State.acc``.
+
+Why no crossing: a pair that ends every step at ``g >= th`` along its own normal cannot
+change sides within a step whose relative motion is below ``th`` (the explicit step
+moves a vertex far less: a 5 m/s fall at dt = 3e-4 s is 1.5 mm), and a larger step (the
+implicit solver's) is still held along the normal of the step's start, to first order.
+
+Candidates: a Verlet list
+-------------------------
+Finding the pairs within ``th`` costs a spatial hash over all triangles and edges
+(:func:`build_candidates`: cells of about one mean edge plus the radius; vertices and
+edge midpoints sorted by the hash of their cell). The hash is built for a radius ``th +
+skin`` at positions ``x_b``; a pair missing from the list was further than ``th + skin``
+apart then, so it cannot come within ``th`` before some vertex has moved more than
+``skin / 2`` relative to the others (relative: the displacement since ``x_b`` less its
+mean, since a rigid translation moves no pair). After each step the largest such
+displacement decides whether the list is built again, at the positions the step began
+from, with a skin of at least :data:`SKIN` thicknesses and :data:`SKIN_EDGE` of the mean
+edge, grown with the step's own relative motion (so that a fast or large step, the
+implicit solver's, is covered too). Each step then looks only at the live pairs
+(:func:`_select`): those whose distance at the build, less how far their vertices have
+moved since, can still be within ``th``. A cloth at rest or falling rigidly builds its
+list once and has no live pair until it touches itself.
+
+This module imports no ROS package.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict
+
+import numba as nb
+import numpy as np
+
+from .compiled import kernel
+from .contact import C_FORCE, C_ID, distance
+from .surface_query import point_triangle_sq
+
+__all__ = ['SelfCollision', 'segment_segment', 'build_candidates', 'warm', 'SWEEPS',
+           'ROUNDS',
+           'SEP_SPEED', 'DEFAULT_FRICTION']
+
+#: Gauss-Seidel sweeps over the pairs short of their target, per round
+SWEEPS = 16
+#: rounds of (check every candidate, sweep the short ones, obstacles again)
+ROUNDS = 4
+#: [m/s] the fastest a pair that began inside the layer is moved back out to it
+SEP_SPEED = 0.05
+#: a pair short of its target by less than this fraction of th counts as satisfied
+SLACK = 1e-2
+#: friction coefficient between two layers of the cloth (static = kinetic)
+DEFAULT_FRICTION = 0.5
+#: the skin of the candidate list: at least this many contact thicknesses and this
+#: fraction of the mean edge (module docstring)
+SKIN = 2.0
+SKIN_EDGE = 0.25
+#: the skin grows with the relative motion of the step that builds the list, to allow
+#: half this many such steps before the next build (at most a mean edge long, or 2.5
+#: steps' motion)
+STEPS_PER_BUILD = 16.0
+
+
+@kernel(inline='always')
+def _clamp01(a):
+    return min(max(a, 0.0), 1.0)
+
+
+@kernel()
+def segment_segment(p0, p1, q0, q1):
+    """Parameters (s, t) of the closest points ``p0 + s (p1 - p0)`` and ``q0 + t (q1 -
+    q0)`` of two segments (Ericson, Real-Time Collision Detection, 5.1.9), and their
+    squared distance: (dd, s, t)."""
+    d10 = p1[0] - p0[0]
+    d11 = p1[1] - p0[1]
+    d12 = p1[2] - p0[2]
+    d20 = q1[0] - q0[0]
+    d21 = q1[1] - q0[1]
+    d22 = q1[2] - q0[2]
+    r0 = p0[0] - q0[0]
+    r1 = p0[1] - q0[1]
+    r2 = p0[2] - q0[2]
+    a = d10 * d10 + d11 * d11 + d12 * d12
+    e = d20 * d20 + d21 * d21 + d22 * d22
+    f = d20 * r0 + d21 * r1 + d22 * r2
+    eps = 1e-30
+    if a <= eps and e <= eps:
+        s = 0.0
+        t = 0.0
+    elif a <= eps:
+        s = 0.0
+        t = _clamp01(f / e)
+    else:
+        c = d10 * r0 + d11 * r1 + d12 * r2
+        if e <= eps:
+            t = 0.0
+            s = _clamp01(-c / a)
+        else:
+            b = d10 * d20 + d11 * d21 + d12 * d22
+            den = a * e - b * b
+            s = _clamp01((b * f - c * e) / den) if den > 0.0 else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = _clamp01(-c / a)
+            elif t > 1.0:
+                t = 1.0
+                s = _clamp01((b - c) / a)
+    e0 = r0 + s * d10 - t * d20
+    e1 = r1 + s * d11 - t * d21
+    e2 = r2 + s * d12 - t * d22
+    return e0 * e0 + e1 * e1 + e2 * e2, s, t
+
+
+@kernel(inline='always')
+def _hash(ix, iy, iz, mask):
+    return ((ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)) & mask
+
+
+@kernel()
+def _bucket_sort(p, cell, mask):
+    """Points p (k,3) sorted by the hash of their cell: (order, start (mask+2,), cells
+    (k,3))."""
+    k = p.shape[0]
+    cells = np.empty((k, 3), np.int64)
+    count = np.zeros(mask + 2, np.int64)
+    for i in range(k):
+        cx = int(math.floor(p[i, 0] / cell))
+        cy = int(math.floor(p[i, 1] / cell))
+        cz = int(math.floor(p[i, 2] / cell))
+        cells[i, 0] = cx
+        cells[i, 1] = cy
+        cells[i, 2] = cz
+        count[_hash(cx, cy, cz, mask) + 1] += 1
+    for b in range(mask + 1):
+        count[b + 1] += count[b]
+    fill = count[:-1].copy()
+    order = np.empty(k, np.int64)
+    for i in range(k):
+        h = _hash(cells[i, 0], cells[i, 1], cells[i, 2], mask)
+        order[fill[h]] = i
+        fill[h] += 1
+    return order, count, cells
+
+
+@kernel()
+def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
+    """The vertex-triangle pairs (i, t) and edge-edge pairs (e, f), e < f, within
+    ``radius`` of each other at x (module docstring: no pair incident at a vertex, none
+    within ``th`` in the rest shape), into ``vt`` and ``ee``, their distances at x into
+    ``vtd`` and ``eed``; returns their counts (a count above an array's length: make it
+    longer and call again)."""
+    n = x.shape[0]
+    m = faces.shape[0]
+    ne = edges.shape[0]
+    r2 = radius * radius
+    th2 = th * th
+    # edge midpoints and half lengths; cells about one mean edge long
+    hmax = 0.0
+    hsum = 0.0
+    mid = np.empty((ne, 3))
+    half = np.empty(ne)
+    for e in range(ne):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        l2 = 0.0
+        for k in range(3):
+            mid[e, k] = 0.5 * (x[a, k] + x[b, k])
+            l2 += (x[a, k] - x[b, k]) ** 2
+        half[e] = 0.5 * math.sqrt(l2)
+        hmax = max(hmax, half[e])
+        hsum += half[e]
+    cell = 2.0 * hsum / max(ne, 1) + radius
+    size = 1
+    while size < 2 * max(n, ne):
+        size *= 2
+    mask = size - 1
+    # vertex-triangle: the vertices in the cells of each triangle's box grown by radius
+    order, start, cells = _bucket_sort(x, cell, mask)
+    nvt = 0
+    for t in range(m):
+        a = faces[t, 0]
+        b = faces[t, 1]
+        c = faces[t, 2]
+        lo0 = min(x[a, 0], x[b, 0], x[c, 0]) - radius
+        lo1 = min(x[a, 1], x[b, 1], x[c, 1]) - radius
+        lo2 = min(x[a, 2], x[b, 2], x[c, 2]) - radius
+        hi0 = max(x[a, 0], x[b, 0], x[c, 0]) + radius
+        hi1 = max(x[a, 1], x[b, 1], x[c, 1]) + radius
+        hi2 = max(x[a, 2], x[b, 2], x[c, 2]) + radius
+        for cx in range(int(math.floor(lo0 / cell)), int(math.floor(hi0 / cell)) + 1):
+            for cy in range(int(math.floor(lo1 / cell)), int(math.floor(hi1 / cell)) + 1):
+                for cz in range(int(math.floor(lo2 / cell)), int(math.floor(hi2 / cell)) + 1):
+                    h = _hash(cx, cy, cz, mask)
+                    for q in range(start[h], start[h + 1]):
+                        i = order[q]
+                        if cells[i, 0] != cx or cells[i, 1] != cy or cells[i, 2] != cz:
+                            continue
+                        if i == a or i == b or i == c:
+                            continue
+                        if (x[i, 0] < lo0 or x[i, 0] > hi0 or x[i, 1] < lo1
+                                or x[i, 1] > hi1 or x[i, 2] < lo2 or x[i, 2] > hi2):
+                            continue
+                        dd = point_triangle_sq(x[i, 0], x[i, 1], x[i, 2], x[a], x[b],
+                                               x[c])[0]
+                        if dd >= r2:
+                            continue
+                        dr = point_triangle_sq(rest[i, 0], rest[i, 1], rest[i, 2], rest[a],
+                                               rest[b], rest[c])[0]
+                        if dr < th2:
+                            continue
+                        if nvt < vt.shape[0]:
+                            vt[nvt, 0] = i
+                            vt[nvt, 1] = t
+                            vtd[nvt] = math.sqrt(dd)
+                        nvt += 1
+    # edge-edge: the midpoints in the cells of each edge's box grown by radius and the
+    # longest half edge, within the two half lengths + radius of its own midpoint
+    order, start, cells = _bucket_sort(mid, cell, mask)
+    nee = 0
+    grow = radius + hmax
+    for e in range(ne):
+        a0 = edges[e, 0]
+        a1 = edges[e, 1]
+        lo0 = min(x[a0, 0], x[a1, 0]) - grow
+        lo1 = min(x[a0, 1], x[a1, 1]) - grow
+        lo2 = min(x[a0, 2], x[a1, 2]) - grow
+        hi0 = max(x[a0, 0], x[a1, 0]) + grow
+        hi1 = max(x[a0, 1], x[a1, 1]) + grow
+        hi2 = max(x[a0, 2], x[a1, 2]) + grow
+        for cx in range(int(math.floor(lo0 / cell)), int(math.floor(hi0 / cell)) + 1):
+            for cy in range(int(math.floor(lo1 / cell)), int(math.floor(hi1 / cell)) + 1):
+                for cz in range(int(math.floor(lo2 / cell)), int(math.floor(hi2 / cell)) + 1):
+                    h = _hash(cx, cy, cz, mask)
+                    for q in range(start[h], start[h + 1]):
+                        f = order[q]
+                        if f <= e:
+                            continue
+                        if cells[f, 0] != cx or cells[f, 1] != cy or cells[f, 2] != cz:
+                            continue
+                        lim = half[e] + half[f] + radius
+                        dm = ((mid[e, 0] - mid[f, 0]) ** 2 + (mid[e, 1] - mid[f, 1]) ** 2
+                              + (mid[e, 2] - mid[f, 2]) ** 2)
+                        if dm > lim * lim:
+                            continue
+                        b0 = edges[f, 0]
+                        b1 = edges[f, 1]
+                        if b0 == a0 or b0 == a1 or b1 == a0 or b1 == a1:
+                            continue
+                        dd = segment_segment(x[a0], x[a1], x[b0], x[b1])[0]
+                        if dd >= r2:
+                            continue
+                        if segment_segment(rest[a0], rest[a1], rest[b0], rest[b1])[0] < th2:
+                            continue
+                        if nee < ee.shape[0]:
+                            ee[nee, 0] = e
+                            ee[nee, 1] = f
+                            eed[nee] = math.sqrt(dd)
+                        nee += 1
+    return nvt, nee
+
+
+@kernel(inline='always')
+def _gap(p, x, x0, gi, gw, gn, gd):
+    """Gap of pair p at the step's end, along its normal at the start."""
+    g = gd[p]
+    for k in range(4):
+        j = gi[p, k]
+        g += gw[p, k] * (gn[p, 0] * (x[j, 0] - x0[j, 0]) + gn[p, 1] * (x[j, 1] - x0[j, 1])
+                         + gn[p, 2] * (x[j, 2] - x0[j, 2]))
+    return g
+
+
+@kernel(inline='always')
+def _target(d, th, sep):
+    """The gap a pair must end the step with (module docstring)."""
+    # inside the layer: back out by sep beyond the slack that counts as satisfied, so a
+    # pair inside does climb back (a slack larger than sep would let it stay and drift)
+    return th if d >= th else d + min(th - d, sep + SLACK * th)
+
+
+@kernel(parallel=True)
+def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, th,
+                   sep, flag):
+    """The constraint of each live candidate ``live[:nlive]`` (an index into the
+    vertex-triangle pairs, then the edge-edge pairs) at the step's start x0 (module
+    docstring), in slot p of: vertices
+    gi (P,4), weights gw (P,4), normal gn (P,3) from side B to side A, distance gd (P,).
+    A pair at zero distance takes the triangle's normal (or the edges' cross product)
+    turned towards A's side; if that too is undefined it gets weight 0 (skipped).
+    flag[p]: 1 if the pair is short of its target at the step's end x (:func:`_short`)."""
+    for p in nb.prange(nlive):
+        cand = live[p]
+        if cand < nvt:
+            i = vt[cand, 0]
+            t = vt[cand, 1]
+            a = faces[t, 0]
+            b = faces[t, 1]
+            c = faces[t, 2]
+            dd, u, v, w = point_triangle_sq(x0[i, 0], x0[i, 1], x0[i, 2], x0[a], x0[b],
+                                            x0[c])
+            gi[p, 0] = i
+            gi[p, 1] = a
+            gi[p, 2] = b
+            gi[p, 3] = c
+            gw[p, 0] = 1.0
+            gw[p, 1] = -u
+            gw[p, 2] = -v
+            gw[p, 3] = -w
+            # fallback direction: the triangle's normal
+            e10 = x0[b, 0] - x0[a, 0]
+            e11 = x0[b, 1] - x0[a, 1]
+            e12 = x0[b, 2] - x0[a, 2]
+            e20 = x0[c, 0] - x0[a, 0]
+            e21 = x0[c, 1] - x0[a, 1]
+            e22 = x0[c, 2] - x0[a, 2]
+            f0 = e11 * e22 - e12 * e21
+            f1 = e12 * e20 - e10 * e22
+            f2 = e10 * e21 - e11 * e20
+        else:
+            q = cand - nvt
+            e = ee[q, 0]
+            f = ee[q, 1]
+            a0 = edges[e, 0]
+            a1 = edges[e, 1]
+            b0 = edges[f, 0]
+            b1 = edges[f, 1]
+            dd, s, t = segment_segment(x0[a0], x0[a1], x0[b0], x0[b1])
+            gi[p, 0] = a0
+            gi[p, 1] = a1
+            gi[p, 2] = b0
+            gi[p, 3] = b1
+            gw[p, 0] = 1.0 - s
+            gw[p, 1] = s
+            gw[p, 2] = t - 1.0
+            gw[p, 3] = -t
+            e10 = x0[a1, 0] - x0[a0, 0]
+            e11 = x0[a1, 1] - x0[a0, 1]
+            e12 = x0[a1, 2] - x0[a0, 2]
+            e20 = x0[b1, 0] - x0[b0, 0]
+            e21 = x0[b1, 1] - x0[b0, 1]
+            e22 = x0[b1, 2] - x0[b0, 2]
+            f0 = e11 * e22 - e12 * e21
+            f1 = e12 * e20 - e10 * e22
+            f2 = e10 * e21 - e11 * e20
+        # the vector from side B's point to side A's: sum_k w_k x0_k
+        r0 = 0.0
+        r1 = 0.0
+        r2 = 0.0
+        for k in range(4):
+            j = gi[p, k]
+            r0 += gw[p, k] * x0[j, 0]
+            r1 += gw[p, k] * x0[j, 1]
+            r2 += gw[p, k] * x0[j, 2]
+        d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if d > 1e-12:
+            gn[p, 0] = r0 / d
+            gn[p, 1] = r1 / d
+            gn[p, 2] = r2 / d
+        else:
+            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+            if fn > 0.0:
+                gn[p, 0] = f0 / fn
+                gn[p, 1] = f1 / fn
+                gn[p, 2] = f2 / fn
+            else:
+                gw[p, 0] = 0.0
+                gw[p, 1] = 0.0
+                gw[p, 2] = 0.0
+                gw[p, 3] = 0.0
+                gn[p, 0] = 0.0
+                gn[p, 1] = 0.0
+                gn[p, 2] = 1.0
+        gd[p] = d
+        flag[p] = 1 if _gap(p, x, x0, gi, gw, gn, gd) < _target(d, th, sep) - SLACK * th else 0
+
+
+@kernel()
+def _short(x, x0, gi, gw, gn, gd, npair, th, sep, flag):
+    """flag[p] = 1 for every pair short of its target by more than the slack; returns
+    how many."""
+    slack = SLACK * th
+    k = 0
+    for p in range(npair):
+        f = 1 if _gap(p, x, x0, gi, gw, gn, gd) < _target(gd[p], th, sep) - slack else 0
+        flag[p] = f
+        k += f
+    return k
+
+
+@kernel(inline='always')
+def _kick(j, x, v, dt, mass, c0, c1, c2):
+    """Move vertex j by c (c0, c1, c2) [m] and its velocity by c / dt; returns the
+    kinetic energy change [J]."""
+    b = v[j, 0] * v[j, 0] + v[j, 1] * v[j, 1] + v[j, 2] * v[j, 2]
+    x[j, 0] += c0
+    x[j, 1] += c1
+    x[j, 2] += c2
+    v[j, 0] += c0 / dt
+    v[j, 1] += c1 / dt
+    v[j, 2] += c2 / dt
+    a = v[j, 0] * v[j, 0] + v[j, 1] * v[j, 1] + v[j, 2] * v[j, 2]
+    return 0.5 * mass[j] * (a - b)
+
+
+@kernel()
+def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
+    """Vertex j, just moved by the response, back onto the contact layer of every
+    obstacle it entered (position and velocity, as an impulse of the obstacle: its force
+    is added to ``Control.contact``); returns the kinetic energy change [J]."""
+    dke = 0.0
+    for k in range(ob.shape[0]):
+        d, n0, n1, n2 = distance(ob, meta, data, k, x[j, 0], x[j, 1], x[j, 2])
+        if d >= th:
+            continue
+        c = th - d
+        dke += _kick(j, x, v, dt, mass, c * n0, c * n1, c * n2)
+        f = mass[j] * c / (dt * dt)
+        contact[j, C_FORCE] += f * n0
+        contact[j, C_FORCE + 1] += f * n1
+        contact[j, C_FORCE + 2] += f * n2
+        contact[j, C_ID] = k
+    return dke
+
+
+@kernel()
+def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, th, sep, mu, dt, ob, meta, data,
+             contact):
+    """The impulse of pair p (module docstring) if it is short of its target; returns
+    (the kinetic energy change [J], 1 if it acted else 0)."""
+    if gw[p, 0] == 0.0 and gw[p, 1] == 0.0 and gw[p, 2] == 0.0:
+        return 0.0, 0
+    target = _target(gd[p], th, sep)
+    g = _gap(p, x, x0, gi, gw, gn, gd)
+    if g >= target - SLACK * th:
+        return 0.0, 0
+    W = 0.0
+    for k in range(4):
+        W += gw[p, k] * gw[p, k] * inv[gi[p, k]]
+    if W <= 0.0:
+        return 0.0, 0
+    lam = (target - g) / W
+    n0 = gn[p, 0]
+    n1 = gn[p, 1]
+    n2 = gn[p, 2]
+    # relative tangential motion of the step (before this normal correction)
+    r0 = 0.0
+    r1 = 0.0
+    r2 = 0.0
+    for k in range(4):
+        j = gi[p, k]
+        r0 += gw[p, k] * (x[j, 0] - x0[j, 0])
+        r1 += gw[p, k] * (x[j, 1] - x0[j, 1])
+        r2 += gw[p, k] * (x[j, 2] - x0[j, 2])
+    rn = r0 * n0 + r1 * n1 + r2 * n2
+    t0 = r0 - rn * n0
+    t1 = r1 - rn * n1
+    t2 = r2 - rn * n2
+    rt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    # friction: remove up to mu (target - g) of the tangential slip, in the same units
+    fl = 0.0
+    if rt > 0.0 and mu > 0.0:
+        fl = min(rt, mu * (target - g)) / (W * rt)
+    dke = 0.0
+    for k in range(4):
+        j = gi[p, k]
+        s = gw[p, k] * inv[j]
+        if s == 0.0:
+            continue
+        dke += _kick(j, x, v, dt, mass, s * (lam * n0 - fl * t0), s * (lam * n1 - fl * t1),
+                     s * (lam * n2 - fl * t2))
+        if ob.shape[0] > 0:
+            dke += _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact)
+    return dke, 1
+
+
+@kernel()
+def respond(x, x0, v, mass, pinned, gi, gw, gn, gd, npair, th, mu, dt, flag, active,
+            ob, meta, data, contact, stats):
+    """The response of the module docstring over the live pairs' constraints (from
+    :func:`_pair_geometry`); x and v in place. ``stats``: (pairs that acted, rounds,
+    sweeps, pairs still short at the end, the closest gap at the end [m]). Returns the
+    kinetic energy change [J] (<= 0 but for the slow return of pairs inside the
+    layer)."""
+    sep = SEP_SPEED * dt
+    inv = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        inv[i] = 0.0 if pinned[i] else 1.0 / mass[i]
+    dke = 0.0
+    acted = 0
+    sweeps = 0
+    rounds = 0
+    na = 0
+    for rnd in range(ROUNDS):
+        # the first round's flags come with the geometry (:func:`_pair_geometry`)
+        if rnd > 0 and _short(x, x0, gi, gw, gn, gd, npair, th, sep, flag) == 0:
+            break
+        na = 0
+        for p in range(npair):
+            if flag[p]:
+                active[na] = p
+                na += 1
+        if na == 0:
+            break
+        rounds += 1
+        for sw in range(SWEEPS):
+            sweeps += 1
+            moved = 0
+            for q in range(na):
+                dk, hit = _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, th, sep,
+                                   mu, dt, ob, meta, data, contact)
+                dke += dk
+                moved += hit
+            if sw == 0:
+                acted += moved
+            if moved == 0:
+                break
+    # the last check found every pair satisfied, or the rounds ran out: count what is
+    # short and the closest gap among the pairs of the last round
+    left = 0
+    closest = np.inf
+    if rounds > 0:
+        for q in range(na):
+            p = active[q]
+            g = _gap(p, x, x0, gi, gw, gn, gd)
+            closest = min(closest, g)
+            left += 1 if g < _target(gd[p], th, sep) - SLACK * th else 0
+    stats[0] = acted
+    stats[1] = rounds
+    stats[2] = sweeps
+    stats[3] = left
+    stats[4] = closest
+    return dke
+
+
+@kernel()
+def _select(x, x0, xb, vt, vtd, nvt, edges, ee, eed, nee, faces, th, reach, live):
+    """The candidates that may come within ``th`` this step, into ``live``; returns
+    their count. Vertex i moved ``a_i = |x_i - xb_i - c_b|`` relative to the others since
+    the build (c_b: the mean displacement) and ``s_i = |x_i - x0_i - c_0|`` in this step;
+    ``reach[i] = a_i + 2 s_i`` bounds how far it got, at any time in the step and after a
+    response (which moves a vertex by no more than the step's own approach), relative to
+    the build's positions. A pair whose distance at the build exceeds ``th`` plus its
+    vertices' reaches is left out."""
+    n = x.shape[0]
+    cb0 = 0.0
+    cb1 = 0.0
+    cb2 = 0.0
+    c00 = 0.0
+    c01 = 0.0
+    c02 = 0.0
+    for i in range(n):
+        cb0 += x[i, 0] - xb[i, 0]
+        cb1 += x[i, 1] - xb[i, 1]
+        cb2 += x[i, 2] - xb[i, 2]
+        c00 += x[i, 0] - x0[i, 0]
+        c01 += x[i, 1] - x0[i, 1]
+        c02 += x[i, 2] - x0[i, 2]
+    cb0 /= n
+    cb1 /= n
+    cb2 /= n
+    c00 /= n
+    c01 /= n
+    c02 /= n
+    for i in range(n):
+        a = math.sqrt((x[i, 0] - xb[i, 0] - cb0) ** 2 + (x[i, 1] - xb[i, 1] - cb1) ** 2
+                      + (x[i, 2] - xb[i, 2] - cb2) ** 2)
+        s = math.sqrt((x[i, 0] - x0[i, 0] - c00) ** 2 + (x[i, 1] - x0[i, 1] - c01) ** 2
+                      + (x[i, 2] - x0[i, 2] - c02) ** 2)
+        reach[i] = a + 2.0 * s
+    k = 0
+    for p in range(nvt):
+        t = vt[p, 1]
+        r = (reach[vt[p, 0]] + max(reach[faces[t, 0]], reach[faces[t, 1]],
+                                  reach[faces[t, 2]]))
+        if vtd[p] < th + r:
+            live[k] = p
+            k += 1
+    for q in range(nee):
+        e = ee[q, 0]
+        f = ee[q, 1]
+        r = (max(reach[edges[e, 0]], reach[edges[e, 1]])
+             + max(reach[edges[f, 0]], reach[edges[f, 1]]))
+        if eed[q] < th + r:
+            live[k] = nvt + q
+            k += 1
+    return k
+
+
+@kernel()
+def _ledger(x, xs, v, vs, v0, mass, dt):
+    """The energy the response removed [J]: minus the change of kinetic energy and of
+    potential energy, the latter as minus the work of the step's force ``f_i = m_i (vs_i
+    - v0_i) / dt`` over the response's displacement ``x_i - xs_i`` by the trapezoid rule
+    (the force falls from f to what the contact balances; xs, vs: position and velocity
+    before the response, v0: velocity before the step). In a resting contact, where a
+    force pushes a vertex into the layer each step and the response takes it back, this
+    reads zero; a collision without force reads its lost kinetic energy."""
+    out = 0.0
+    for i in range(x.shape[0]):
+        m = mass[i]
+        for k in range(3):
+            c = x[i, k] - xs[i, k]
+            if c == 0.0 and v[i, k] == vs[i, k]:
+                continue
+            out -= 0.5 * m * (v[i, k] * v[i, k] - vs[i, k] * vs[i, k])
+            out += 0.5 * m * (vs[i, k] - v0[i, k]) / dt * c
+    return out
+
+
+@kernel()
+def _relative_motion(x, xb, out):
+    """out[0] = max_i |(x_i - xb_i) - mean_j (x_j - xb_j)| (module docstring)."""
+    n = x.shape[0]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for i in range(n):
+        s0 += x[i, 0] - xb[i, 0]
+        s1 += x[i, 1] - xb[i, 1]
+        s2 += x[i, 2] - xb[i, 2]
+    s0 /= n
+    s1 /= n
+    s2 /= n
+    best = 0.0
+    for i in range(n):
+        d0 = x[i, 0] - xb[i, 0] - s0
+        d1 = x[i, 1] - xb[i, 1] - s1
+        d2 = x[i, 2] - xb[i, 2] - s2
+        best = max(best, d0 * d0 + d1 * d1 + d2 * d2)
+    out[0] = math.sqrt(best)
+
+
+class SelfCollision:
+    """The self-collision of one simulator's cloth (module docstring).
+
+    ``begin(x, v)`` before a run of steps (the state the first step starts from),
+    ``after_step(state, control, coeff, dt)`` after each step: the response, in place;
+    returns the energy it removed [J] (:func:`_ledger`; the balance's dissipation)."""
+
+    def __init__(self, rest: np.ndarray, faces: np.ndarray, edges: np.ndarray):
+        n = len(rest)
+        self.rest = np.ascontiguousarray(rest, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.edges = np.ascontiguousarray(edges, dtype=np.int64)
+        self.friction = DEFAULT_FRICTION
+        # the mean rest edge: the skin grows to it at most, unless one step moves further
+        self.edge = float(np.linalg.norm(self.rest[self.edges[:, 0]]
+                                         - self.rest[self.edges[:, 1]], axis=1).mean())
+        self.x0 = np.zeros((n, 3))
+        self.v0 = np.zeros((n, 3))               # velocities where the step began
+        self.xs = np.zeros((n, 3))               # before the response
+        self.vs = np.zeros((n, 3))
+        self.xe = np.zeros((n, 3))               # after the first response
+        self.xb = None                          # positions of the last candidate build
+        self.skin = 0.0
+        self.vt = np.zeros((max(64, n), 2), np.int64)
+        self.ee = np.zeros((max(64, 2 * n), 2), np.int64)
+        self.vtd = np.zeros(len(self.vt))
+        self.eed = np.zeros(len(self.ee))
+        self.nvt = 0
+        self.nee = 0
+        self.nlive = 0
+        self._alloc(len(self.vt) + len(self.ee))
+        self.motion = np.zeros(1)
+        self.reach = np.zeros(n)
+        self.stats = np.zeros(5)
+        self.stats[4] = np.inf
+        self.builds = 0
+
+    def _alloc(self, p):
+        self.live = np.zeros(p, np.int64)
+        self.gi = np.zeros((p, 4), np.int64)
+        self.gw = np.zeros((p, 4))
+        self.gn = np.zeros((p, 3))
+        self.gd = np.zeros(p)
+        self.flag = np.zeros(p, np.int64)
+        self.active = np.zeros(p, np.int64)
+
+    def begin(self, x: np.ndarray, v: np.ndarray) -> None:
+        self.x0[:] = x
+        self.v0[:] = v
+
+    def _build(self, x: np.ndarray, th: float, skin: float) -> None:
+        while True:
+            nvt, nee = build_candidates(x, self.rest, self.faces, self.edges, th + skin, th,
+                                        self.vt, self.ee, self.vtd, self.eed)
+            if nvt <= len(self.vt) and nee <= len(self.ee):
+                break
+            if nvt > len(self.vt):
+                self.vt = np.zeros((2 * nvt, 2), np.int64)
+                self.vtd = np.zeros(2 * nvt)
+            if nee > len(self.ee):
+                self.ee = np.zeros((2 * nee, 2), np.int64)
+                self.eed = np.zeros(2 * nee)
+        self.nvt, self.nee = nvt, nee
+        if len(self.gd) < nvt + nee:
+            self._alloc(2 * (nvt + nee))
+        self.xb = x.copy()
+        self.skin = skin
+        self.builds += 1
+
+    def after_step(self, state, control, coeff, dt: float) -> float:
+        th = float(control.contact_params[0])
+        x = state.x
+        _relative_motion(x, self.x0, self.motion)
+        step_motion = float(self.motion[0])
+        moved = np.inf
+        if self.xb is not None:
+            _relative_motion(x, self.xb, self.motion)
+            moved = float(self.motion[0])
+        if moved > 0.5 * self.skin:
+            self._build(self.x0, th, max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step_motion,
+                                         min(STEPS_PER_BUILD * step_motion, self.edge)))
+            moved = step_motion
+        self.nlive = _select(x, self.x0, self.xb, self.vt, self.vtd, self.nvt, self.edges,
+                             self.ee, self.eed, self.nee, self.faces, th, self.reach,
+                             self.live)
+        diss = 0.0
+        if self.nlive:
+            _pair_geometry(self.x0, x, self.faces, self.edges, self.vt, self.nvt, self.ee,
+                           self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, th,
+                           SEP_SPEED * dt, self.flag)
+            self.xs[:] = x
+            self.vs[:] = state.v
+            respond(x, self.x0, state.v, coeff.mass, control.pinned, self.gi, self.gw,
+                    self.gn, self.gd, self.nlive, th, self.friction, dt, self.flag,
+                    self.active, control.obstacles, control.sdf_meta, control.sdf_data,
+                    control.contact, self.stats)
+            acted = self.stats[0]
+            if self.gd[:self.nlive].min() < th:
+                # pairs in contact: once more from the exact geometry at the step's end
+                # (the linearised gap drifts by |slip|^2 / d a step under a sliding
+                # contact; see the module docstring)
+                self.xe[:] = x
+                _pair_geometry(self.xe, x, self.faces, self.edges, self.vt, self.nvt,
+                               self.ee, self.live, self.nlive, self.gi, self.gw, self.gn,
+                               self.gd, th, SEP_SPEED * dt, self.flag)
+                respond(x, self.xe, state.v, coeff.mass, control.pinned, self.gi, self.gw,
+                        self.gn, self.gd, self.nlive, th, 0.0, dt, self.flag, self.active,
+                        control.obstacles, control.sdf_meta, control.sdf_data,
+                        control.contact, self.stats)
+                self.stats[0] += acted
+            if self.stats[0] > 0:
+                diss = _ledger(x, self.xs, state.v, self.vs, self.v0, coeff.mass, dt)
+        else:
+            self.stats[:4] = 0.0
+            self.stats[4] = np.inf
+        self.x0[:] = x
+        self.v0[:] = state.v
+        return diss
+
+    def report(self) -> Dict[str, float]:
+        """The last step's self-contact: candidates (vertex-triangle, edge-edge), the
+        live ones (that could touch this step), pairs that acted, rounds and sweeps of
+        the projection, pairs left short, the closest gap [m] along the live pairs'
+        normals, and the candidate builds so far."""
+        s = self.stats
+        return {'candidates': int(self.nvt + self.nee), 'live': int(self.nlive),
+                'active': int(s[0]), 'rounds': int(s[1]), 'sweeps': int(s[2]),
+                'left_short': int(s[3]), 'closest_gap': float(s[4]),
+                'builds': int(self.builds)}
+
+
+def warm() -> None:
+    """Compile every kernel of this module (into numba's cache) on a two-triangle sheet
+    with a third triangle falling onto it: the candidates, the live pairs, the response
+    with an obstacle and the ledger."""
+    from .contact import WIDTH
+    from .state import Control
+    rest = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0],
+                     [0.2, 0.2, 5.0], [0.6, 0.2, 5.0], [0.2, 0.6, 5.0]])
+    faces = np.array([[0, 1, 2], [3, 4, 5]], np.int64)
+    edges = np.array([[0, 1], [0, 2], [1, 2], [3, 4], [3, 5], [4, 5]], np.int64)
+    sc = SelfCollision(rest, faces, edges)
+    x = rest.copy()
+    x[3:, 2] = 0.003
+    v = np.zeros((6, 3))
+    v[3:, 2] = -1.0
+    control = Control.empty(6)
+    plane = np.zeros((1, WIDTH))
+    plane[0, 4:13] = np.eye(3).reshape(-1)
+    plane[0, 2] = -1.0
+    control = control.with_obstacles(plane, np.zeros((0, 8)), np.zeros(0))
+
+    class _State:
+        pass
+    state = _State()
+    state.x, state.v, state.acc = x, v, np.zeros(2)
+
+    class _Coeff:
+        mass = np.full(6, 0.01)
+    sc.begin(x, v)
+    x += 0.002 * v
+    sc.after_step(state, control, _Coeff, 0.002)

@@ -1,0 +1,219 @@
+"""Self-collision (cosserat_ros.core.self_contact): its geometry against brute force, and
+scenes where the cloth folds onto itself, checked at every frame (30 Hz) by an
+independent test (test/cloth_check.py, numpy only): no two triangles that share no vertex
+intersect, and no vertex comes closer than half the thickness to a triangle that does not
+hold it."""
+import math
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from cosserat_ros.core import self_contact as SC
+from cosserat_ros.mesh import grid_mesh
+from cosserat_ros.simulator import ClothSimulator, Material
+
+sys.path.insert(0, os.path.dirname(__file__))
+import cloth_check  # noqa: E402
+
+G = 9.81
+CLOTH = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)
+FRAME = 1.0 / 30.0
+
+
+def _sim(nx, ny, width, height, material=CLOTH):
+    sim = ClothSimulator(grid_mesh(nx, ny, width=width, height=height), material, dt=1e-5,
+                         check_dt=False)
+    sim.dt = 0.9 * sim.critical_dt()
+    sim.gravity = (0.0, 0.0, -G)
+    sim.self_collision = True
+    return sim
+
+
+def _frames(sim, seconds, each=None):
+    """Step ``seconds`` in frames of 1/30 s; after each frame check the cloth (the
+    independent test) and call ``each(k)``; returns the closest vertex-triangle distance
+    seen."""
+    th = sim.contact_thickness
+    per = max(1, int(round(FRAME / sim.dt)))
+    closest = np.inf
+    for k in range(int(round(seconds / FRAME))):
+        if each is not None:
+            each(k)
+        sim.step(per)
+        x = sim.positions
+        hits = cloth_check.intersecting_pairs(x, sim.mesh.faces)
+        assert len(hits) == 0, f'frame {k}: triangles {hits[:5].tolist()} intersect'
+        closest = min(closest, cloth_check.closest_vertex_triangle(x, sim.mesh.faces, th))
+        assert closest >= 0.5 * th, (f'frame {k}: a vertex {closest:.2e} m from a triangle; '
+                                     f'{sim.self_contact_state()}')
+    return closest
+
+
+# ---------------------------------------------------------------- geometry
+
+def test_segment_segment_is_the_closest_pair_of_points():
+    """Ericson's closest points of two segments against a dense sampling of both."""
+    rng = np.random.default_rng(4)
+    s = np.linspace(0, 1, 401)
+    for _ in range(40):
+        p0, p1, q0, q1 = rng.normal(size=(4, 3))
+        if _ % 5 == 0:
+            q1 = q0 + 0.5 * (p1 - p0)                       # parallel
+        dd, a, b = SC.segment_segment(p0, p1, q0, q1)
+        P = p0 + s[:, None] * (p1 - p0)
+        Q = q0 + s[:, None] * (q1 - q0)
+        brute = ((P[:, None] - Q[None]) ** 2).sum(-1).min()
+        assert dd <= brute + 1e-12
+        assert dd >= brute - 2e-5 * (1 + brute)
+        d = p0 + a * (p1 - p0) - (q0 + b * (q1 - q0))
+        assert d @ d == pytest.approx(dd, abs=1e-12)
+
+
+def test_candidates_are_every_pair_within_the_radius():
+    """The spatial hash finds exactly the brute force's vertex-triangle and edge-edge
+    pairs within the radius (incident pairs left out) on a cloth folded onto itself."""
+    mesh = grid_mesh(10, 10, width=0.3, height=0.3)
+    X = mesh.vertices
+    # fold the sheet about y = 0 onto itself, 4 mm apart, with a wrinkle
+    y = X[:, 1]
+    x = np.stack([X[:, 0] + 0.003 * np.sin(40 * y), np.abs(y),
+                  np.where(y > 0, 0.004, 0.0) + 0.001 * np.cos(30 * X[:, 0])], 1)
+    radius, th = 0.008, 1e-4
+    vt = np.zeros((10000, 2), np.int64)
+    ee = np.zeros((40000, 2), np.int64)
+    nvt, nee = SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt, ee,
+                                   np.zeros(10000), np.zeros(40000))
+    assert 0 < nvt <= len(vt) and 0 < nee <= len(ee)
+    got_vt = {tuple(p) for p in vt[:nvt]}
+    got_ee = {tuple(p) for p in ee[:nee]}
+    F, E = mesh.faces, mesh.edges
+    want_vt = set()
+    for t in range(len(F)):
+        others = np.setdiff1d(np.arange(len(x)), F[t])
+        d = cloth_check.point_triangle_distance(
+            x[others], *(np.repeat(x[F[t, k]][None], len(others), 0) for k in range(3)))
+        want_vt |= {(int(i), t) for i in others[d < radius]}
+    assert got_vt == want_vt
+    s = np.linspace(0, 1, 101)
+    want_ee = set()
+    P = x[E[:, 0]][:, None] + s[None, :, None] * (x[E[:, 1]] - x[E[:, 0]])[:, None]
+    for e in range(len(E)):
+        f = np.arange(e + 1, len(E))
+        f = f[~np.isin(E[f], E[e]).any(1)]
+        dd = ((P[e][None, :, None] - P[f][:, None]) ** 2).sum(-1).min(axis=(1, 2))
+        want_ee |= {(e, int(j)) for j in f[np.sqrt(dd) < radius * 0.999]}
+    # sampled distances are upper bounds: every sampled pair is found, and every pair found
+    # is within the radius by the exact test
+    assert want_ee <= got_ee
+    for e, f in got_ee:
+        assert SC.segment_segment(x[E[e, 0]], x[E[e, 1]], x[E[f, 0]], x[E[f, 1]])[0] \
+            < radius ** 2
+
+
+def test_switches_and_their_checks():
+    sim = ClothSimulator(grid_mesh(4, 4), CLOTH, dt=1e-5, check_dt=False)
+    assert sim.self_collision is False
+    assert sim.self_contact_state()['active'] == 0
+    with pytest.raises(ValueError, match='True or False'):
+        sim.self_collision = 'yes'
+    with pytest.raises(ValueError, match='>= 0'):
+        sim.self_friction = -0.1
+    with pytest.raises(ValueError, match='number'):
+        sim.self_friction = 'high'
+    sim.self_friction = 0.8
+    sim.self_collision = True
+    assert sim.self_friction == 0.8 and sim.self_collision
+
+
+# ---------------------------------------------------------------- scenes
+
+def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself():
+    """A 0.5 m cloth, nearly upright, its lower edge 0.5 m above the ground, falls and
+    folds onto itself; the energy never rises above its start."""
+    sim = _sim(16, 16, 0.5, 0.5)
+    X = sim.mesh.vertices
+    y = X[:, 1] - X[:, 1].min()
+    a = math.radians(80)
+    x = np.stack([X[:, 0] + 2e-3 * np.sin(7 * y), y * math.cos(a), 0.5 + y * math.sin(a)],
+                 1)
+    sim.set_positions(x)
+    sim.add_obstacle('plane', name='ground')
+    e0 = sim.energy()['total']
+    folded = []
+
+    def each(k):
+        folded.append(sim.self_contact_state()['active'])
+        assert sim.energy()['total'] <= e0 * 1.005
+    _frames(sim, 1.5, each)
+    assert max(folded) > 0                                  # it did touch itself
+    assert sim.positions[:, 2].max() < 0.15                 # and lies crumpled
+    assert sim.positions[:, 2].min() > 0.9 * sim.contact_thickness
+
+
+def test_a_cloth_draped_over_a_sphere_lets_its_edges_fall_onto_each_other():
+    """A 0.9 m cloth dropped from 1 m onto a sphere of radius 0.15 m: its sides hang and
+    fold into one another, never through."""
+    sim = _sim(18, 18, 0.9, 0.9)
+    sim.set_positions(sim.mesh.vertices + np.array([0.0, 0.0, 1.0]))
+    sim.add_obstacle('sphere', center=(0, 0, 0.0), radius=0.15, name='ball')
+    touched = []
+    _frames(sim, 1.6, lambda k: touched.append(sim.self_contact_state()['active']))
+    assert max(touched) > 0
+    assert sim.positions[:, 2].min() < -0.15                # the sides hang down
+
+
+def test_two_handles_fold_a_cloth_in_half_on_the_ground():
+    """Two handles lift one edge of a cloth lying on the ground, carry it over in an
+    arc, lay it on the other half and let go: the halves end on top of each other."""
+    sim = _sim(14, 14, 0.4, 0.4)
+    th = sim.contact_thickness
+    sim.set_positions(sim.mesh.vertices + np.array([0.0, 0.0, th]))
+    sim.add_obstacle('plane', name='ground')
+    X = sim.positions
+    top = X[:, 1].max()
+    hs = [sim.grasp(point=(xc, top, th), radius=0.02) for xc in (X[:, 0].min(),
+                                                                 X[:, 0].max())]
+    R, K = top, 36
+
+    def each(k):
+        if k < K:
+            t = math.pi * (k + 1) / K
+            for h, xc in zip(hs, (X[:, 0].min(), X[:, 0].max())):
+                sim.move_handle(h, (xc, R * math.cos(t), 4 * th + 0.7 * R * math.sin(t)),
+                                duration=FRAME)
+        elif k == K + 3:
+            for h in hs:
+                sim.release(h)
+    _frames(sim, (K + 15) * FRAME, each)
+    x = sim.positions
+    lifted = X[:, 1] > 0.02                    # the half that was carried over
+    assert np.all(x[lifted, 1] < 0.05)
+    assert x[lifted, 2].mean() > x[~lifted, 2].mean() + th
+
+
+def test_a_strip_twisted_by_two_handles_touches_itself_without_crossing():
+    """A 0.6 x 0.06 m strip held at both ends, one end turned by 360 degrees about the
+    strip's axis while the ends come closer: the strip coils onto itself."""
+    sim = _sim(30, 3, 0.6, 0.06)
+    sim.gravity = (0.0, 0.0, 0.0)
+    X = sim.mesh.vertices
+    left = np.flatnonzero(X[:, 0] <= X[:, 0].min() + 1e-9)
+    right = np.flatnonzero(X[:, 0] >= X[:, 0].max() - 1e-9)
+    hl = sim.grasp(vertices=left, point=(X[:, 0].min(), 0.0, 0.0))
+    hr = sim.grasp(vertices=right, point=(X[:, 0].max(), 0.0, 0.0))
+    K = 60
+    xr = X[:, 0].max()
+
+    def each(k):
+        if k < K:
+            t = 2 * math.pi * (k + 1) / K
+            q = (math.sin(t / 2), 0.0, 0.0, math.cos(t / 2))
+            sim.move_handle(hr, (xr - 0.15 * (k + 1) / K, 0.0, 0.0), q, duration=FRAME)
+            sim.move_handle(hl, (X[:, 0].min() + 0.15 * (k + 1) / K, 0.0, 0.0),
+                            duration=FRAME)
+    touched = []
+    _frames(sim, (K + 10) * FRAME,
+            lambda k: (each(k), touched.append(sim.self_contact_state()['active'])))
+    assert max(touched) > 0
