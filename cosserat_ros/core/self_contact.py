@@ -91,14 +91,14 @@ import numpy as np
 from .compiled import kernel
 from .contact import C_FORCE, C_ID, distance
 from .surface_query import point_triangle_sq
+from .terms.jet import cross
 
 __all__ = ['SelfCollision', 'segment_segment', 'build_candidates', 'warm', 'SWEEPS',
-           'ROUNDS',
-           'SEP_SPEED', 'DEFAULT_FRICTION']
+           'ROUNDS', 'SEP_SPEED', 'DEFAULT_FRICTION']
 
 #: Gauss-Seidel sweeps over the pairs short of their target, per round
 SWEEPS = 16
-#: rounds of (check every candidate, sweep the short ones, obstacles again)
+#: rounds of (check every live pair, sweep the short ones)
 ROUNDS = 4
 #: [m/s] the fastest a pair that began inside the layer is moved back out to it
 SEP_SPEED = 0.05
@@ -327,6 +327,13 @@ def _gap(p, x, x0, gi, gw, gn, gd):
 
 
 @kernel(inline='always')
+def _deficit(p, x, x0, gi, gw, gn, gd, th, sep):
+    """How far pair p falls short of its target at the step's end [m]; the pair is short
+    when this exceeds the slack ``SLACK th``."""
+    return _target(gd[p], th, sep) - _gap(p, x, x0, gi, gw, gn, gd)
+
+
+@kernel(inline='always')
 def _target(d, th, sep):
     """The gap a pair must end the step with (module docstring)."""
     # inside the layer: back out by sep beyond the slack that counts as satisfied, so a
@@ -362,16 +369,8 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
             gw[p, 1] = -u
             gw[p, 2] = -v
             gw[p, 3] = -w
-            # fallback direction: the triangle's normal
-            e10 = x0[b, 0] - x0[a, 0]
-            e11 = x0[b, 1] - x0[a, 1]
-            e12 = x0[b, 2] - x0[a, 2]
-            e20 = x0[c, 0] - x0[a, 0]
-            e21 = x0[c, 1] - x0[a, 1]
-            e22 = x0[c, 2] - x0[a, 2]
-            f0 = e11 * e22 - e12 * e21
-            f1 = e12 * e20 - e10 * e22
-            f2 = e10 * e21 - e11 * e20
+            # the fallback direction: the triangle's normal, (b - a) x (c - a)
+            p1, q1, p2, q2 = a, b, a, c
         else:
             q = cand - nvt
             e = ee[q, 0]
@@ -389,15 +388,10 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
             gw[p, 1] = s
             gw[p, 2] = t - 1.0
             gw[p, 3] = -t
-            e10 = x0[a1, 0] - x0[a0, 0]
-            e11 = x0[a1, 1] - x0[a0, 1]
-            e12 = x0[a1, 2] - x0[a0, 2]
-            e20 = x0[b1, 0] - x0[b0, 0]
-            e21 = x0[b1, 1] - x0[b0, 1]
-            e22 = x0[b1, 2] - x0[b0, 2]
-            f0 = e11 * e22 - e12 * e21
-            f1 = e12 * e20 - e10 * e22
-            f2 = e10 * e21 - e11 * e20
+            # the fallback direction: the edges' cross product
+            p1, q1, p2, q2 = a0, a1, b0, b1
+        f0, f1, f2 = cross(x0[q1, 0] - x0[p1, 0], x0[q1, 1] - x0[p1, 1], x0[q1, 2] - x0[p1, 2],
+                           x0[q2, 0] - x0[p2, 0], x0[q2, 1] - x0[p2, 1], x0[q2, 2] - x0[p2, 2])
         # the vector from side B's point to side A's: sum_k w_k x0_k
         r0 = 0.0
         r1 = 0.0
@@ -427,7 +421,7 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
                 gn[p, 1] = 0.0
                 gn[p, 2] = 1.0
         gd[p] = d
-        flag[p] = 1 if _gap(p, x, x0, gi, gw, gn, gd) < _target(d, th, sep) - SLACK * th else 0
+        flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > SLACK * th else 0
 
 
 @kernel()
@@ -437,64 +431,55 @@ def _short(x, x0, gi, gw, gn, gd, npair, th, sep, flag):
     slack = SLACK * th
     k = 0
     for p in range(npair):
-        f = 1 if _gap(p, x, x0, gi, gw, gn, gd) < _target(gd[p], th, sep) - slack else 0
+        f = 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > slack else 0
         flag[p] = f
         k += f
     return k
 
 
 @kernel(inline='always')
-def _kick(j, x, v, dt, mass, c0, c1, c2):
-    """Move vertex j by c (c0, c1, c2) [m] and its velocity by c / dt; returns the
-    kinetic energy change [J]."""
-    b = v[j, 0] * v[j, 0] + v[j, 1] * v[j, 1] + v[j, 2] * v[j, 2]
+def _kick(j, x, v, dt, c0, c1, c2):
+    """Move vertex j by c (c0, c1, c2) [m] and its velocity by c / dt."""
     x[j, 0] += c0
     x[j, 1] += c1
     x[j, 2] += c2
     v[j, 0] += c0 / dt
     v[j, 1] += c1 / dt
     v[j, 2] += c2 / dt
-    a = v[j, 0] * v[j, 0] + v[j, 1] * v[j, 1] + v[j, 2] * v[j, 2]
-    return 0.5 * mass[j] * (a - b)
 
 
 @kernel()
 def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
     """Vertex j, just moved by the response, back onto the contact layer of every
     obstacle it entered (position and velocity, as an impulse of the obstacle: its force
-    is added to ``Control.contact``); returns the kinetic energy change [J]."""
-    dke = 0.0
+    is added to ``Control.contact``)."""
     for k in range(ob.shape[0]):
         d, n0, n1, n2 = distance(ob, meta, data, k, x[j, 0], x[j, 1], x[j, 2])
         if d >= th:
             continue
         c = th - d
-        dke += _kick(j, x, v, dt, mass, c * n0, c * n1, c * n2)
+        _kick(j, x, v, dt, c * n0, c * n1, c * n2)
         f = mass[j] * c / (dt * dt)
         contact[j, C_FORCE] += f * n0
         contact[j, C_FORCE + 1] += f * n1
         contact[j, C_FORCE + 2] += f * n2
         contact[j, C_ID] = k
-    return dke
 
 
 @kernel()
 def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, th, sep, mu, dt, ob, meta, data,
              contact):
-    """The impulse of pair p (module docstring) if it is short of its target; returns
-    (the kinetic energy change [J], 1 if it acted else 0)."""
-    if gw[p, 0] == 0.0 and gw[p, 1] == 0.0 and gw[p, 2] == 0.0:
-        return 0.0, 0
-    target = _target(gd[p], th, sep)
-    g = _gap(p, x, x0, gi, gw, gn, gd)
-    if g >= target - SLACK * th:
-        return 0.0, 0
+    """The impulse of pair p (module docstring) if it is short of its target; returns 1
+    if it acted, else 0 (also for a pair without weight: degenerate, or all pinned)."""
+    short = _deficit(p, x, x0, gi, gw, gn, gd, th, sep)
+    if short <= SLACK * th:
+        return 0
     W = 0.0
     for k in range(4):
         W += gw[p, k] * gw[p, k] * inv[gi[p, k]]
     if W <= 0.0:
-        return 0.0, 0
-    lam = (target - g) / W
+        return 0
+    lam = short / W
     n0 = gn[p, 0]
     n1 = gn[p, 1]
     n2 = gn[p, 2]
@@ -515,33 +500,34 @@ def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, th, sep, mu, dt, ob, meta, 
     # friction: remove up to mu (target - g) of the tangential slip, in the same units
     fl = 0.0
     if rt > 0.0 and mu > 0.0:
-        fl = min(rt, mu * (target - g)) / (W * rt)
-    dke = 0.0
+        fl = min(rt, mu * short) / (W * rt)
     for k in range(4):
         j = gi[p, k]
         s = gw[p, k] * inv[j]
         if s == 0.0:
             continue
-        dke += _kick(j, x, v, dt, mass, s * (lam * n0 - fl * t0), s * (lam * n1 - fl * t1),
-                     s * (lam * n2 - fl * t2))
+        _kick(j, x, v, dt, s * (lam * n0 - fl * t0), s * (lam * n1 - fl * t1),
+              s * (lam * n2 - fl * t2))
         if ob.shape[0] > 0:
-            dke += _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact)
-    return dke, 1
+            _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact)
+    return 1
 
 
 @kernel()
-def respond(x, x0, v, mass, pinned, gi, gw, gn, gd, npair, th, mu, dt, flag, active,
-            ob, meta, data, contact, stats):
-    """The response of the module docstring over the live pairs' constraints (from
-    :func:`_pair_geometry`); x and v in place. ``stats``: (pairs that acted, rounds,
-    sweeps, pairs still short at the end, the closest gap at the end [m]). Returns the
-    kinetic energy change [J] (<= 0 but for the slow return of pairs inside the
-    layer)."""
-    sep = SEP_SPEED * dt
-    inv = np.empty(x.shape[0])
-    for i in range(x.shape[0]):
+def _inverse_mass(mass, pinned, inv):
+    """inv[i] = 1 / m_i, 0 for a pinned or held vertex."""
+    for i in range(mass.shape[0]):
         inv[i] = 0.0 if pinned[i] else 1.0 / mass[i]
-    dke = 0.0
+
+
+@kernel()
+def respond(x, x0, v, inv, mass, gi, gw, gn, gd, npair, th, mu, dt, flag, active, ob, meta,
+            data, contact, stats):
+    """The response of the module docstring over the live pairs' constraints (from
+    :func:`_pair_geometry`, which also flagged the short ones); x and v in place; inverse
+    masses ``inv`` (:func:`_inverse_mass`). ``stats``: (pairs that acted, rounds, sweeps,
+    pairs still short at the end, the closest gap at the end [m])."""
+    sep = SEP_SPEED * dt
     acted = 0
     sweeps = 0
     rounds = 0
@@ -562,10 +548,8 @@ def respond(x, x0, v, mass, pinned, gi, gw, gn, gd, npair, th, mu, dt, flag, act
             sweeps += 1
             moved = 0
             for q in range(na):
-                dk, hit = _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, th, sep,
-                                   mu, dt, ob, meta, data, contact)
-                dke += dk
-                moved += hit
+                moved += _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, th, sep,
+                                  mu, dt, ob, meta, data, contact)
             if sw == 0:
                 acted += moved
             if moved == 0:
@@ -577,52 +561,50 @@ def respond(x, x0, v, mass, pinned, gi, gw, gn, gd, npair, th, mu, dt, flag, act
     if rounds > 0:
         for q in range(na):
             p = active[q]
-            g = _gap(p, x, x0, gi, gw, gn, gd)
-            closest = min(closest, g)
-            left += 1 if g < _target(gd[p], th, sep) - SLACK * th else 0
+            closest = min(closest, _gap(p, x, x0, gi, gw, gn, gd))
+            left += 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > SLACK * th else 0
     stats[0] = acted
     stats[1] = rounds
     stats[2] = sweeps
     stats[3] = left
     stats[4] = closest
-    return dke
 
 
 @kernel()
-def _select(x, x0, xb, vt, vtd, nvt, edges, ee, eed, nee, faces, th, reach, live):
-    """The candidates that may come within ``th`` this step, into ``live``; returns
-    their count. Vertex i moved ``a_i = |x_i - xb_i - c_b|`` relative to the others since
-    the build (c_b: the mean displacement) and ``s_i = |x_i - x0_i - c_0|`` in this step;
-    ``reach[i] = a_i + 2 s_i`` bounds how far it got, at any time in the step and after a
-    response (which moves a vertex by no more than the step's own approach), relative to
-    the build's positions. A pair whose distance at the build exceeds ``th`` plus its
-    vertices' reaches is left out."""
+def _displacement(x, ref, out):
+    """out[i] = |(x_i - ref_i) - mean_j (x_j - ref_j)|: how far vertex i moved from ref
+    relative to the others (a rigid translation moves no pair; module docstring);
+    returns the largest."""
     n = x.shape[0]
-    cb0 = 0.0
-    cb1 = 0.0
-    cb2 = 0.0
-    c00 = 0.0
-    c01 = 0.0
-    c02 = 0.0
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
     for i in range(n):
-        cb0 += x[i, 0] - xb[i, 0]
-        cb1 += x[i, 1] - xb[i, 1]
-        cb2 += x[i, 2] - xb[i, 2]
-        c00 += x[i, 0] - x0[i, 0]
-        c01 += x[i, 1] - x0[i, 1]
-        c02 += x[i, 2] - x0[i, 2]
-    cb0 /= n
-    cb1 /= n
-    cb2 /= n
-    c00 /= n
-    c01 /= n
-    c02 /= n
+        c0 += x[i, 0] - ref[i, 0]
+        c1 += x[i, 1] - ref[i, 1]
+        c2 += x[i, 2] - ref[i, 2]
+    c0 /= n
+    c1 /= n
+    c2 /= n
+    best = 0.0
     for i in range(n):
-        a = math.sqrt((x[i, 0] - xb[i, 0] - cb0) ** 2 + (x[i, 1] - xb[i, 1] - cb1) ** 2
-                      + (x[i, 2] - xb[i, 2] - cb2) ** 2)
-        s = math.sqrt((x[i, 0] - x0[i, 0] - c00) ** 2 + (x[i, 1] - x0[i, 1] - c01) ** 2
-                      + (x[i, 2] - x0[i, 2] - c02) ** 2)
-        reach[i] = a + 2.0 * s
+        out[i] = math.sqrt((x[i, 0] - ref[i, 0] - c0) ** 2 + (x[i, 1] - ref[i, 1] - c1) ** 2
+                           + (x[i, 2] - ref[i, 2] - c2) ** 2)
+        best = max(best, out[i])
+    return best
+
+
+@kernel()
+def _select(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, step, reach, live):
+    """The candidates that may come within ``th`` this step, into ``live``; returns
+    their count. Vertex i moved ``moved[i]`` relative to the others since the build and
+    ``step[i]`` in this step (:func:`_displacement`); ``reach[i] = moved[i] + 2 step[i]``
+    bounds how far it got, at any time in the step and after a response (which moves a
+    vertex by no more than the step's own approach), relative to the build's positions.
+    A pair whose distance at the build exceeds ``th`` plus its vertices' reaches is left
+    out."""
+    for i in range(reach.shape[0]):
+        reach[i] = moved[i] + 2.0 * step[i]
     k = 0
     for p in range(nvt):
         t = vt[p, 1]
@@ -663,29 +645,6 @@ def _ledger(x, xs, v, vs, v0, mass, dt):
     return out
 
 
-@kernel()
-def _relative_motion(x, xb, out):
-    """out[0] = max_i |(x_i - xb_i) - mean_j (x_j - xb_j)| (module docstring)."""
-    n = x.shape[0]
-    s0 = 0.0
-    s1 = 0.0
-    s2 = 0.0
-    for i in range(n):
-        s0 += x[i, 0] - xb[i, 0]
-        s1 += x[i, 1] - xb[i, 1]
-        s2 += x[i, 2] - xb[i, 2]
-    s0 /= n
-    s1 /= n
-    s2 /= n
-    best = 0.0
-    for i in range(n):
-        d0 = x[i, 0] - xb[i, 0] - s0
-        d1 = x[i, 1] - xb[i, 1] - s1
-        d2 = x[i, 2] - xb[i, 2] - s2
-        best = max(best, d0 * d0 + d1 * d1 + d2 * d2)
-    out[0] = math.sqrt(best)
-
-
 class SelfCollision:
     """The self-collision of one simulator's cloth (module docstring).
 
@@ -693,15 +652,14 @@ class SelfCollision:
     ``after_step(state, control, coeff, dt)`` after each step: the response, in place;
     returns the energy it removed [J] (:func:`_ledger`; the balance's dissipation)."""
 
-    def __init__(self, rest: np.ndarray, faces: np.ndarray, edges: np.ndarray):
-        n = len(rest)
-        self.rest = np.ascontiguousarray(rest, dtype=np.float64)
-        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.edges = np.ascontiguousarray(edges, dtype=np.int64)
-        self.friction = DEFAULT_FRICTION
+    def __init__(self, mesh):
+        n = mesh.n_vertices
+        self.rest = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.edges = np.ascontiguousarray(mesh.edges, dtype=np.int64)
         # the mean rest edge: the skin grows to it at most, unless one step moves further
-        self.edge = float(np.linalg.norm(self.rest[self.edges[:, 0]]
-                                         - self.rest[self.edges[:, 1]], axis=1).mean())
+        self.edge = float(mesh.mean_edge_length)
+        self.friction = DEFAULT_FRICTION
         self.x0 = np.zeros((n, 3))
         self.v0 = np.zeros((n, 3))               # velocities where the step began
         self.xs = np.zeros((n, 3))               # before the response
@@ -717,8 +675,10 @@ class SelfCollision:
         self.nee = 0
         self.nlive = 0
         self._alloc(len(self.vt) + len(self.ee))
-        self.motion = np.zeros(1)
+        self.moved = np.zeros(n)                # relative displacement since the build
+        self.step_moved = np.zeros(n)           # ... and in this step
         self.reach = np.zeros(n)
+        self.inv = np.zeros(n)
         self.stats = np.zeros(5)
         self.stats[4] = np.inf
         self.builds = 0
@@ -755,46 +715,39 @@ class SelfCollision:
         self.skin = skin
         self.builds += 1
 
+    def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
+        """The live pairs' constraints linearised at ``start``, and the response to them."""
+        _pair_geometry(start, x, self.faces, self.edges, self.vt, self.nvt, self.ee,
+                       self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, th,
+                       SEP_SPEED * dt, self.flag)
+        respond(x, start, v, self.inv, mass, self.gi, self.gw, self.gn, self.gd, self.nlive,
+                th, mu, dt, self.flag, self.active, control.obstacles, control.sdf_meta,
+                control.sdf_data, control.contact, self.stats)
+
     def after_step(self, state, control, coeff, dt: float) -> float:
         th = float(control.contact_params[0])
         x = state.x
-        _relative_motion(x, self.x0, self.motion)
-        step_motion = float(self.motion[0])
-        moved = np.inf
-        if self.xb is not None:
-            _relative_motion(x, self.xb, self.motion)
-            moved = float(self.motion[0])
-        if moved > 0.5 * self.skin:
-            self._build(self.x0, th, max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step_motion,
-                                         min(STEPS_PER_BUILD * step_motion, self.edge)))
-            moved = step_motion
-        self.nlive = _select(x, self.x0, self.xb, self.vt, self.vtd, self.nvt, self.edges,
-                             self.ee, self.eed, self.nee, self.faces, th, self.reach,
-                             self.live)
+        step = _displacement(x, self.x0, self.step_moved)
+        if self.xb is None or _displacement(x, self.xb, self.moved) > 0.5 * self.skin:
+            self._build(self.x0, th, max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
+                                         min(STEPS_PER_BUILD * step, self.edge)))
+            self.moved[:] = self.step_moved         # built where this step began
+        self.nlive = _select(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed,
+                             self.nee, self.faces, th, self.moved, self.step_moved,
+                             self.reach, self.live)
         diss = 0.0
         if self.nlive:
-            _pair_geometry(self.x0, x, self.faces, self.edges, self.vt, self.nvt, self.ee,
-                           self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, th,
-                           SEP_SPEED * dt, self.flag)
+            _inverse_mass(coeff.mass, control.pinned, self.inv)
             self.xs[:] = x
             self.vs[:] = state.v
-            respond(x, self.x0, state.v, coeff.mass, control.pinned, self.gi, self.gw,
-                    self.gn, self.gd, self.nlive, th, self.friction, dt, self.flag,
-                    self.active, control.obstacles, control.sdf_meta, control.sdf_data,
-                    control.contact, self.stats)
-            acted = self.stats[0]
+            self._respond(self.x0, x, state.v, control, coeff.mass, th, self.friction, dt)
             if self.gd[:self.nlive].min() < th:
                 # pairs in contact: once more from the exact geometry at the step's end
                 # (the linearised gap drifts by |slip|^2 / d a step under a sliding
-                # contact; see the module docstring)
+                # contact; module docstring), friction already applied
+                acted = self.stats[0]
                 self.xe[:] = x
-                _pair_geometry(self.xe, x, self.faces, self.edges, self.vt, self.nvt,
-                               self.ee, self.live, self.nlive, self.gi, self.gw, self.gn,
-                               self.gd, th, SEP_SPEED * dt, self.flag)
-                respond(x, self.xe, state.v, coeff.mass, control.pinned, self.gi, self.gw,
-                        self.gn, self.gd, self.nlive, th, 0.0, dt, self.flag, self.active,
-                        control.obstacles, control.sdf_meta, control.sdf_data,
-                        control.contact, self.stats)
+                self._respond(self.xe, x, state.v, control, coeff.mass, th, 0.0, dt)
                 self.stats[0] += acted
             if self.stats[0] > 0:
                 diss = _ledger(x, self.xs, state.v, self.vs, self.v0, coeff.mass, dt)
@@ -818,33 +771,25 @@ class SelfCollision:
 
 
 def warm() -> None:
-    """Compile every kernel of this module (into numba's cache) on a two-triangle sheet
-    with a third triangle falling onto it: the candidates, the live pairs, the response
-    with an obstacle and the ledger."""
+    """Compile every kernel of this module (into numba's cache) on two triangles, one
+    falling onto the other just above a plane: the candidates, the live pairs, the
+    response with an obstacle and the ledger."""
+    from types import SimpleNamespace
     from .contact import WIDTH
-    from .state import Control
+    from .mesh import ClothMesh
+    from .state import Control, State
     rest = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0],
                      [0.2, 0.2, 5.0], [0.6, 0.2, 5.0], [0.2, 0.6, 5.0]])
-    faces = np.array([[0, 1, 2], [3, 4, 5]], np.int64)
-    edges = np.array([[0, 1], [0, 2], [1, 2], [3, 4], [3, 5], [4, 5]], np.int64)
-    sc = SelfCollision(rest, faces, edges)
+    sc = SelfCollision(ClothMesh(rest, np.array([[0, 1, 2], [3, 4, 5]])))
     x = rest.copy()
     x[3:, 2] = 0.003
     v = np.zeros((6, 3))
     v[3:, 2] = -1.0
-    control = Control.empty(6)
     plane = np.zeros((1, WIDTH))
     plane[0, 4:13] = np.eye(3).reshape(-1)
     plane[0, 2] = -1.0
-    control = control.with_obstacles(plane, np.zeros((0, 8)), np.zeros(0))
-
-    class _State:
-        pass
-    state = _State()
-    state.x, state.v, state.acc = x, v, np.zeros(2)
-
-    class _Coeff:
-        mass = np.full(6, 0.01)
+    control = Control.empty(6).with_obstacles(plane, np.zeros((0, 8)), np.zeros(0))
     sc.begin(x, v)
     x += 0.002 * v
-    sc.after_step(state, control, _Coeff, 0.002)
+    sc.after_step(State(x, v, np.zeros(2)), control, SimpleNamespace(mass=np.full(6, 0.01)),
+                  0.002)

@@ -40,7 +40,7 @@ from .mesh import ClothMesh
 from .model import Model
 from .handles import HandleSet
 from .obstacles import ObstacleSet
-from .self_contact import SelfCollision
+from .self_contact import DEFAULT_FRICTION, SelfCollision
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
 from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
@@ -134,7 +134,7 @@ class ClothSimulator:
         self._handles = HandleSet()
         self._self: Optional[SelfCollision] = None     # built when first switched on
         self._self_on = False
-        self._self_friction = None
+        self._self_friction = DEFAULT_FRICTION
         self._user_pins = np.zeros(n, dtype=bool)
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
@@ -612,17 +612,13 @@ class ClothSimulator:
         if not isinstance(on, (bool, np.bool_)):
             raise ValueError(f'self_collision must be True or False, got {on!r}')
         if on and self._self is None:
-            self._self = SelfCollision(self.mesh.vertices, self.mesh.faces, self.mesh.edges)
-            if self._self_friction is not None:
-                self._self.friction = self._self_friction
+            self._self = SelfCollision(self.mesh)
+            self._self.friction = self._self_friction
         self._self_on = bool(on)
 
     @property
     def self_friction(self) -> float:
         """Coulomb friction coefficient between two layers of the cloth (default 0.5)."""
-        if self._self_friction is None:
-            from .self_contact import DEFAULT_FRICTION
-            return DEFAULT_FRICTION
         return self._self_friction
 
     @self_friction.setter
