@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cosserat_ros.core import self_contact as SC
-from cosserat_ros.mesh import grid_mesh
+from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -96,7 +96,7 @@ def test_candidates_are_every_pair_within_the_radius():
             x[others], *(np.repeat(x[F[t, k]][None], len(others), 0) for k in range(3)))
         want_vt |= {(int(i), t) for i in others[d < radius]}
     assert got_vt == want_vt
-    s = np.linspace(0, 1, 101)
+    s = np.linspace(0, 1, 41)
     want_ee = set()
     P = x[E[:, 0]][:, None] + s[None, :, None] * (x[E[:, 1]] - x[E[:, 0]])[:, None]
     for e in range(len(E)):
@@ -129,10 +129,21 @@ def test_switches_and_their_checks():
 
 # ---------------------------------------------------------------- scenes
 
-def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself():
+@pytest.mark.parametrize('solver', ['explicit', 'implicit'])
+def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself(solver):
     """A 0.5 m cloth, nearly upright, its lower edge 0.5 m above the ground, falls and
-    folds onto itself; the energy never rises above its start."""
-    sim = _sim(16, 16, 0.5, 0.5)
+    folds onto itself; with the explicit solver the energy never rises above its start.
+    The implicit solver at dt = 1/30 s (a relative motion of ~10 thicknesses a step: the
+    response in stages); its energy is not checked here: the ground's contact, applied
+    after its solve (issue 26), adds elastic energy at the impact with or without
+    self-collision (0.36 -> 1.41 J at the tenth step, the same numbers either way)."""
+    if solver == 'explicit':
+        sim = _sim(16, 16, 0.5, 0.5)
+    else:
+        sim = ClothSimulator(grid_mesh(16, 16, width=0.5, height=0.5), CLOTH, dt=1 / 30,
+                             solver='implicit')
+        sim.gravity = (0.0, 0.0, -G)
+        sim.self_collision = True
     X = sim.mesh.vertices
     y = X[:, 1] - X[:, 1].min()
     a = math.radians(80)
@@ -145,7 +156,8 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
 
     def each(k):
         folded.append(sim.self_contact_state()['active'])
-        assert sim.energy()['total'] <= e0 * 1.005
+        if solver == 'explicit':
+            assert sim.energy()['total'] <= e0 * 1.005
     _frames(sim, 1.5, each)
     assert max(folded) > 0                                  # it did touch itself
     assert sim.positions[:, 2].max() < 0.15                 # and lies crumpled
@@ -191,3 +203,69 @@ def test_two_handles_fold_a_cloth_in_half_on_the_ground():
     lifted = X[:, 1] > 0.02                    # the half that was carried over
     assert np.all(x[lifted, 1] < 0.05)
     assert x[lifted, 2].mean() > x[~lifted, 2].mean() + th
+
+
+@pytest.mark.parametrize('mu', [0.0, 0.8])
+def test_an_upper_layer_pulled_over_a_lower_one_drags_it_only_with_friction(mu):
+    """Two equal 0.3 m sheets, one lying on the other on a ground of mu = 0.3; a handle
+    pulls the upper sheet's edge 6 cm along the ground. Without friction between the
+    layers the lower sheet stays; with mu = 0.8 (0.8 of the upper sheet's weight against
+    0.3 of both sheets') it is dragged along."""
+    sheet = grid_mesh(12, 12, width=0.3, height=0.3)
+    n = sheet.n_vertices
+    rest = np.concatenate([sheet.vertices, sheet.vertices + np.array([0.0, 0.0, 1.0])])
+    mesh = ClothMesh(rest, np.concatenate([sheet.faces, sheet.faces + n]))
+    sim = ClothSimulator(mesh, CLOTH, dt=1e-5, check_dt=False)
+    sim.dt = 0.9 * sim.critical_dt()
+    sim.gravity = (0.0, 0.0, -G)
+    sim.self_collision = True
+    sim.self_friction = mu
+    th = sim.contact_thickness
+    x = rest.copy()
+    x[:n, 2] = th
+    x[n:, 2] = 2 * th + 5e-4
+    sim.set_positions(x)
+    sim.add_obstacle('plane', friction=0.3, name='ground')
+    sim.step(int(round(0.2 / sim.dt)))                  # the upper sheet settles
+    lower = np.arange(n)
+    start = sim.positions[lower].mean(0)
+    upper = n + np.arange(n)
+    edge = upper[rest[upper, 1] >= rest[:, 1].max() - 1e-9]
+    c = sim.positions[edge].mean(0)
+    h = sim.grasp(vertices=edge, point=c)
+    sim.move_handle(h, c + np.array([0.0, 0.06, 0.0]), duration=0.5)
+    _frames(sim, 0.6)
+    moved = np.linalg.norm(sim.positions[lower].mean(0) - start)
+    slid = sim.positions[upper, 1].mean() - sim.positions[lower, 1].mean()
+    if mu == 0.0:
+        assert moved < 0.003
+        assert slid > 0.04                              # the upper sheet slid over it
+    else:
+        assert moved > 0.02
+
+
+def test_a_strip_twisted_by_two_handles_touches_itself_without_crossing():
+    """A 0.6 x 0.06 m strip held at both ends, one end turned by 360 degrees about the
+    strip's axis while the ends come 0.4 m apart: the twisted strip sags and coils onto
+    itself (its buckling seeded by a small bow). The independent check sees it come
+    within the contact layer of itself and never closer than half of it."""
+    sim = _sim(30, 3, 0.6, 0.06)
+    th = sim.contact_thickness
+    X = sim.mesh.vertices
+    bow = X.copy()
+    bow[:, 2] += 0.01 * np.sin(math.pi * (X[:, 0] - X[:, 0].min()) / 0.6)
+    sim.set_positions(bow)
+    left = np.flatnonzero(X[:, 0] <= X[:, 0].min() + 1e-9)
+    right = np.flatnonzero(X[:, 0] >= X[:, 0].max() - 1e-9)
+    xl, xr = X[:, 0].min(), X[:, 0].max()
+    hl = sim.grasp(vertices=left, point=(xl, 0.0, 0.0))
+    hr = sim.grasp(vertices=right, point=(xr, 0.0, 0.0))
+    K = 60
+
+    def each(k):
+        if k < K:
+            t = 2 * math.pi * (k + 1) / K
+            q = (math.sin(t / 2), 0.0, 0.0, math.cos(t / 2))
+            sim.move_handle(hr, (xr - 0.1 * (k + 1) / K, 0.0, 0.0), q, duration=FRAME)
+            sim.move_handle(hl, (xl + 0.1 * (k + 1) / K, 0.0, 0.0), duration=FRAME)
+    assert _frames(sim, (K + 15) * FRAME, each) < 1.5 * th

@@ -47,19 +47,24 @@ obstacle's impulse added to its contact force), so a layer pressed onto the grou
 on it and the ground carries the weight of both.
 
 Sliding contacts: the gap above is linear in the step's displacement, so a vertex sliding
-over a curved or kinked layer sees it drift by about ``|slip|^2 / d`` a step, and a pair
-inside the layer may only stop approaching (its target is its own gap). Whenever a live
-pair began the step within ``th``, the response therefore runs once more from the exact
-geometry at the step's end (closest points and normals at x; friction already applied),
-so such a pair climbs back to ``th`` at :data:`SEP_SPEED` instead of creeping through.
+over a curved or kinked layer sees it drift by about ``|slip|^2 / d``. Whenever a pair
+acted or began the step within ``th``, the response therefore runs once more from the
+exact geometry at the step's end (closest points and normals there; friction already
+applied), against the same targets, which every pass takes from the pair's distance
+where the step began: a pair that began outside the layer ends on it, not inside by the
+drift, and one that began inside ends no closer than it began.
 
 Energy: the response removes the energy :func:`_ledger` measures (kinetic, and the
 potential change over its displacement), counted as dissipation in ``State.acc``.
 
 Why no crossing: a pair that ends every step at ``g >= th`` along its own normal cannot
 change sides within a step whose relative motion is below ``th`` (the explicit step
-moves a vertex far less: a 5 m/s fall at dt = 3e-4 s is 1.5 mm), and a larger step (the
-implicit solver's) is still held along the normal of the step's start, to first order.
+moves a vertex far less: a 5 m/s fall at dt = 3e-4 s is 1.5 mm). A larger step (the
+implicit solver's: 1 m/s relative at 1/60 s is 17 mm) is answered in stages: the
+solver's displacement is split into the fewest equal parts that each move a vertex at
+most :data:`STAGE` th relative to the others, and each part's constraints are linearised
+where the previous part ended (the response so far included); velocities change by the
+positions' change over the whole step (backward Euler's x1 = x0 + dt v1 still holds).
 
 Candidates: a Verlet list
 -------------------------
@@ -102,6 +107,9 @@ SWEEPS = 16
 ROUNDS = 4
 #: [m/s] the fastest a pair that began inside the layer is moved back out to it
 SEP_SPEED = 0.05
+#: a step whose relative motion exceeds this many thicknesses is answered in stages
+#: (module docstring: the implicit solver's large steps)
+STAGE = 0.5
 #: a pair short of its target by less than this fraction of th counts as satisfied
 SLACK = 1e-2
 #: friction coefficient between two layers of the cloth (static = kinetic)
@@ -327,10 +335,11 @@ def _gap(p, x, x0, gi, gw, gn, gd):
 
 
 @kernel(inline='always')
-def _deficit(p, x, x0, gi, gw, gn, gd, th, sep):
-    """How far pair p falls short of its target at the step's end [m]; the pair is short
-    when this exceeds the slack ``SLACK th``."""
-    return _target(gd[p], th, sep) - _gap(p, x, x0, gi, gw, gn, gd)
+def _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep):
+    """How far pair p falls short of its target at the step's end [m]: the target from
+    its distance ``g0[p]`` where the whole step began, the gap linearised at x0; the pair
+    is short when this exceeds the slack ``SLACK th``."""
+    return _target(g0[p], th, sep) - _gap(p, x, x0, gi, gw, gn, gd)
 
 
 @kernel(inline='always')
@@ -342,15 +351,17 @@ def _target(d, th, sep):
 
 
 @kernel(parallel=True)
-def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, th,
-                   sep, flag):
+def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, g0, first,
+                   th, sep, flag):
     """The constraint of each live candidate ``live[:nlive]`` (an index into the
     vertex-triangle pairs, then the edge-edge pairs) at the step's start x0 (module
     docstring), in slot p of: vertices
     gi (P,4), weights gw (P,4), normal gn (P,3) from side B to side A, distance gd (P,).
     A pair at zero distance takes the triangle's normal (or the edges' cross product)
     turned towards A's side; if that too is undefined it gets weight 0 (skipped).
-    flag[p]: 1 if the pair is short of its target at the step's end x (:func:`_short`)."""
+    ``first``: x0 is where the step began, and g0 (each pair's distance there, which
+    sets its target: :func:`_deficit`) takes gd. flag[p]: 1 if the pair is short of its
+    target at the step's end x (:func:`_short`)."""
     for p in nb.prange(nlive):
         cand = live[p]
         if cand < nvt:
@@ -421,17 +432,19 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
                 gn[p, 1] = 0.0
                 gn[p, 2] = 1.0
         gd[p] = d
-        flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > SLACK * th else 0
+        if first:
+            g0[p] = d
+        flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > SLACK * th else 0
 
 
 @kernel()
-def _short(x, x0, gi, gw, gn, gd, npair, th, sep, flag):
+def _short(x, x0, gi, gw, gn, gd, g0, npair, th, sep, flag):
     """flag[p] = 1 for every pair short of its target by more than the slack; returns
     how many."""
     slack = SLACK * th
     k = 0
     for p in range(npair):
-        f = 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > slack else 0
+        f = 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > slack else 0
         flag[p] = f
         k += f
     return k
@@ -467,11 +480,19 @@ def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
 
 
 @kernel()
-def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, th, sep, mu, dt, ob, meta, data,
+def _all_onto_obstacles(x, v, dt, inv, mass, ob, meta, data, th, contact):
+    """:func:`_onto_obstacles` for every free vertex."""
+    for j in range(x.shape[0]):
+        if inv[j] > 0.0:
+            _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact)
+
+
+@kernel()
+def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, g0, th, sep, mu, dt, ob, meta, data,
              contact):
     """The impulse of pair p (module docstring) if it is short of its target; returns 1
     if it acted, else 0 (also for a pair without weight: degenerate, or all pinned)."""
-    short = _deficit(p, x, x0, gi, gw, gn, gd, th, sep)
+    short = _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep)
     if short <= SLACK * th:
         return 0
     W = 0.0
@@ -521,20 +542,20 @@ def _inverse_mass(mass, pinned, inv):
 
 
 @kernel()
-def respond(x, x0, v, inv, mass, gi, gw, gn, gd, npair, th, mu, dt, flag, active, ob, meta,
-            data, contact, stats):
+def respond(x, x0, v, inv, mass, gi, gw, gn, gd, g0, npair, th, mu, dt, sep, flag, active,
+            ob, meta, data, contact, stats):
     """The response of the module docstring over the live pairs' constraints (from
     :func:`_pair_geometry`, which also flagged the short ones); x and v in place; inverse
     masses ``inv`` (:func:`_inverse_mass`). ``stats``: (pairs that acted, rounds, sweeps,
-    pairs still short at the end, the closest gap at the end [m])."""
-    sep = SEP_SPEED * dt
+    pairs still short at the end, the closest gap at the end [m]); ``sep``: how far a
+    pair inside the layer moves back out (:func:`_target`)."""
     acted = 0
     sweeps = 0
     rounds = 0
     na = 0
     for rnd in range(ROUNDS):
         # the first round's flags come with the geometry (:func:`_pair_geometry`)
-        if rnd > 0 and _short(x, x0, gi, gw, gn, gd, npair, th, sep, flag) == 0:
+        if rnd > 0 and _short(x, x0, gi, gw, gn, gd, g0, npair, th, sep, flag) == 0:
             break
         na = 0
         for p in range(npair):
@@ -548,8 +569,8 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, npair, th, mu, dt, flag, active
             sweeps += 1
             moved = 0
             for q in range(na):
-                moved += _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, th, sep,
-                                  mu, dt, ob, meta, data, contact)
+                moved += _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, g0, th,
+                                  sep, mu, dt, ob, meta, data, contact)
             if sw == 0:
                 acted += moved
             if moved == 0:
@@ -562,7 +583,7 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, npair, th, mu, dt, flag, active
         for q in range(na):
             p = active[q]
             closest = min(closest, _gap(p, x, x0, gi, gw, gn, gd))
-            left += 1 if _deficit(p, x, x0, gi, gw, gn, gd, th, sep) > SLACK * th else 0
+            left += 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > SLACK * th else 0
     stats[0] = acted
     stats[1] = rounds
     stats[2] = sweeps
@@ -665,6 +686,7 @@ class SelfCollision:
         self.xs = np.zeros((n, 3))               # before the response
         self.vs = np.zeros((n, 3))
         self.xe = np.zeros((n, 3))               # after the first response
+        self.xt = np.zeros((n, 3))               # where a staged step's solver ended
         self.xb = None                          # positions of the last candidate build
         self.skin = 0.0
         self.vt = np.zeros((max(64, n), 2), np.int64)
@@ -689,6 +711,7 @@ class SelfCollision:
         self.gw = np.zeros((p, 4))
         self.gn = np.zeros((p, 3))
         self.gd = np.zeros(p)
+        self.g0 = np.zeros(p)
         self.flag = np.zeros(p, np.int64)
         self.active = np.zeros(p, np.int64)
 
@@ -716,13 +739,35 @@ class SelfCollision:
         self.builds += 1
 
     def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
-        """The live pairs' constraints linearised at ``start``, and the response to them."""
+        """The live pairs' constraints linearised at ``start`` (the step's start x0 the
+        first time, which sets each pair's target), and the response to them."""
+        sep = SEP_SPEED * dt
         _pair_geometry(start, x, self.faces, self.edges, self.vt, self.nvt, self.ee,
-                       self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, th,
-                       SEP_SPEED * dt, self.flag)
-        respond(x, start, v, self.inv, mass, self.gi, self.gw, self.gn, self.gd, self.nlive,
-                th, mu, dt, self.flag, self.active, control.obstacles, control.sdf_meta,
-                control.sdf_data, control.contact, self.stats)
+                       self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, self.g0,
+                       start is self.x0, th, sep, self.flag)
+        respond(x, start, v, self.inv, mass, self.gi, self.gw, self.gn, self.gd, self.g0,
+                self.nlive, th, mu, dt, sep, self.flag, self.active, control.obstacles,
+                control.sdf_meta, control.sdf_data, control.contact, self.stats)
+
+    def _staged(self, x, v, control, mass, th, dt, stages) -> None:
+        """The response to a step whose relative motion exceeds :data:`STAGE` th, in
+        ``stages`` equal parts of the solver's displacement, each linearised where the
+        last one ended (module docstring)."""
+        self.xt[:] = x                               # where the solver took the cloth
+        x[:] = self.x0
+        acted = 0.0
+        for j in range(stages):
+            start = self.x0 if j == 0 else self.xe
+            self.xe[:] = x
+            x += (self.xt - self.x0) / stages
+            self._respond(start, x, v, control, mass, th, self.friction, dt)
+            acted += self.stats[0]
+        self.stats[0] = acted
+        # a vertex pushed towards an obstacle in an early stage went on along the
+        # solver's path, which ended on the contact layer: back onto it
+        if control.obstacles.shape[0] > 0:
+            _all_onto_obstacles(x, v, dt, self.inv, mass, control.obstacles,
+                                control.sdf_meta, control.sdf_data, th, control.contact)
 
     def after_step(self, state, control, coeff, dt: float) -> float:
         th = float(control.contact_params[0])
@@ -740,11 +785,16 @@ class SelfCollision:
             _inverse_mass(coeff.mass, control.pinned, self.inv)
             self.xs[:] = x
             self.vs[:] = state.v
-            self._respond(self.x0, x, state.v, control, coeff.mass, th, self.friction, dt)
-            if self.gd[:self.nlive].min() < th:
+            stages = int(math.ceil(step / (STAGE * th)))
+            if stages > 1:
+                self._staged(x, state.v, control, coeff.mass, th, dt, stages)
+            else:
+                self._respond(self.x0, x, state.v, control, coeff.mass, th, self.friction,
+                              dt)
+            if self.stats[0] > 0 or self.g0[:self.nlive].min() < th:
                 # pairs in contact: once more from the exact geometry at the step's end
-                # (the linearised gap drifts by |slip|^2 / d a step under a sliding
-                # contact; module docstring), friction already applied
+                # (the linearised gap drifts by |slip|^2 / d under a sliding contact;
+                # module docstring), friction already applied
                 acted = self.stats[0]
                 self.xe[:] = x
                 self._respond(self.xe, x, state.v, control, coeff.mass, th, 0.0, dt)
@@ -772,7 +822,7 @@ class SelfCollision:
 
 def warm() -> None:
     """Compile every kernel of this module (into numba's cache) on two triangles, one
-    falling onto the other just above a plane: the candidates, the live pairs, the
+    falling onto the other just above a plane: the candidates, the live pairs, the staged
     response with an obstacle and the ledger."""
     from types import SimpleNamespace
     from .contact import WIDTH
@@ -790,6 +840,6 @@ def warm() -> None:
     plane[0, 2] = -1.0
     control = Control.empty(6).with_obstacles(plane, np.zeros((0, 8)), np.zeros(0))
     sc.begin(x, v)
-    x += 0.002 * v
+    x += 0.004 * v                      # 2 mm relative: a staged response (STAGE)
     sc.after_step(State(x, v, np.zeros(2)), control, SimpleNamespace(mass=np.full(6, 0.01)),
                   0.002)
