@@ -46,6 +46,21 @@ def bag(node, tmp_path_factory):
     return out
 
 
+def assert_logged_on_the_sim_clock(log_t, stamp):
+    """Each message of a topic published once per tick is logged at the recorder's sim
+    time of arrival: not before the previous tick (the recorder's clock may not yet have
+    taken this tick's /clock), not after a period past the next tick (the recorder is at
+    most one tick behind). Not 'within two periods of its own stamp': the latched first
+    message is the last one published before the recorder subscribed, and on a loaded
+    2-core host the node's next tick can come late (a CI run saw a first mesh at
+    144.4 ms, the next at 267.4 ms, every later one logged at its stamp exactly)."""
+    log_t, stamp = np.asarray(log_t), np.asarray(stamp)
+    early = np.flatnonzero(log_t[1:] < stamp[:-1]) + 1
+    late = np.flatnonzero(log_t[:-1] > stamp[1:] + 1e9 / RATE)
+    assert not len(early) and not len(late), [(i, log_t[i], stamp[i]) for i in [*early, *late]]
+    assert stamp[0] - 1e9 / RATE <= log_t[0] and log_t[-1] <= stamp[-1] + 2e9 / RATE
+
+
 def test_recorded_bag_reads_back_with_an_independent_reader(bag):
     assert (bag / 'metadata.yaml').is_file() and (bag / 'cloth.mcap').is_file()
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -83,8 +98,8 @@ def test_recorded_bag_reads_back_with_an_independent_reader(bag):
     inside = [set(a[(a >= lo) & (a <= hi)].tolist()) for a in (mesh_t, energy_t)]
     assert inside[0] == inside[1]
     assert len(inside[0]) >= min(len(mesh_t), len(energy_t)) - 5
-    lag = np.abs(np.array(stamps['/cloth_node/mesh']) - mesh_t) * 1e-9
-    assert lag.max() <= 2.0 / RATE, lag.max()
+    log_t = np.array(stamps['/cloth_node/mesh'])
+    assert_logged_on_the_sim_clock(log_t, mesh_t)
     assert 0.6 * RATE * duration <= n_mesh <= 1.2 * RATE * duration + 2, (n_mesh, duration)
     assert 1 <= len(stamps['/diagnostics']) <= duration + 2
 
@@ -121,16 +136,17 @@ def test_every_message_decodes_with_mcap_ros2_support(bag):
     count, kinds = 0, {}
     with open(bag / 'cloth.mcap', 'rb') as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        clocks = []
         for _, channel, message, ros_msg in reader.iter_decoded_messages():
             count += 1
             kinds.setdefault(channel.topic, type(ros_msg).__name__)
             if channel.topic == '/cloth_node/mesh':
                 assert len(ros_msg.markers[0].points) == 3 * 2 * NX * NX
             elif channel.topic == '/clock':
-                # logged on the recorder's sim clock: within two publish periods of its
-                # own content (the latched first one is up to a period old on arrival)
-                t = ros_msg.clock.sec * 10 ** 9 + ros_msg.clock.nanosec
-                assert abs(message.log_time - t) <= 2e9 / RATE, (message.log_time, t)
+                clocks.append((message.log_time,
+                               ros_msg.clock.sec * 10 ** 9 + ros_msg.clock.nanosec))
+    log_t, t = np.array(clocks).T
+    assert_logged_on_the_sim_clock(log_t, t)
     assert count == expected > 0
     assert set(kinds) == {'/cloth_node/mesh', '/cloth_node/energy', '/diagnostics', '/clock'}
 
