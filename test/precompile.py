@@ -39,6 +39,8 @@ def main():
         s = _sim(6, phi, solver='implicit')
         s.dt = 1.0 / 60.0
         s.step(1)
+    s.add_obstacle('plane', point=(0, 0, -0.1))  # ... and its contact
+    s.step(2)
     for phi in (0.0, 1e-6):                      # the scalar vertex pass
         _sim(6, phi, simd=False).step(1)
     s = ClothSimulator(grid_mesh(6, 6), Material(zeta=10.0, xi=1e-3, phi=1e-4,

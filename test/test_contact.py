@@ -16,12 +16,23 @@ G = 9.81
 CLOTH = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)
 
 
-def _sim(n=10, side=0.3, material=CLOTH, **kw):
+#: the implicit solver's step in the scenes that run both solvers (the explicit one steps
+#: at 0.9 of its critical dt)
+FRAME = 1.0 / 60.0
+
+
+def _sim(n=10, side=0.3, material=CLOTH, solver='explicit', dt=FRAME):
     mesh = grid_mesh(n, n, width=side, height=side)
-    sim = ClothSimulator(mesh, material, dt=1e-5, check_dt=False)
-    sim.dt = 0.9 * sim.critical_dt()
+    if solver == 'implicit':
+        sim = ClothSimulator(mesh, material, dt=dt, solver='implicit')
+    else:
+        sim = ClothSimulator(mesh, material, dt=1e-5, check_dt=False)
+        sim.dt = 0.9 * sim.critical_dt()
     sim.gravity = (0.0, 0.0, -G)
     return sim
+
+
+SOLVERS = pytest.mark.parametrize('solver', ['explicit', 'implicit'])
 
 
 def _distances(obs, k, pts):
@@ -138,15 +149,17 @@ def _lay_on(sim, normal, point, thickness):
     sim.set_positions(x)
 
 
+@SOLVERS
 @pytest.mark.parametrize('slope, mu, slides', [(0.35, 0.5, False), (0.6, 0.3, True)])
 def test_cloth_on_an_incline_sticks_below_the_friction_angle_and_slides_above(slope, mu,
-                                                                             slides):
+                                                                             slides, solver):
     """A square laid flat on a plane tilted by theta: at rest for tan(theta) < mu (the
     centre drifts < 1 mm in 2 s), else sliding with a = g (sin theta - mu cos theta)
     within 5% (the internal forces cancel in the sum: the centre of mass feels gravity,
     the normal reactions and friction only; no damping, which would drag on the absolute
     velocity)."""
-    sim = _sim(material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.0))
+    sim = _sim(material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.0),
+               solver=solver)
     theta = slope
     normal = np.array([0.0, -math.sin(theta), math.cos(theta)])
     sim.add_obstacle('plane', point=(0, 0, 0), normal=normal, friction=mu)
@@ -169,8 +182,9 @@ def test_cloth_on_an_incline_sticks_below_the_friction_angle_and_slides_above(sl
     assert a == pytest.approx(expected, rel=0.05), (a, expected)
 
 
-def test_resting_cloth_presses_with_its_weight_and_stays_on_the_layer():
-    sim = _sim(12, 0.4)
+@SOLVERS
+def test_resting_cloth_presses_with_its_weight_and_stays_on_the_layer(solver):
+    sim = _sim(12, 0.4, solver=solver)
     ground = sim.add_obstacle('plane', name='ground')
     x = sim.mesh.vertices.copy()
     x[:, 2] = sim.contact_thickness
@@ -212,11 +226,12 @@ def test_drape_over_a_sphere_stays_outside_and_symmetric():
     assert np.abs(p.mean(0)[:2]).max() < 5e-3              # 0.5% of the side
 
 
-def test_no_tunnelling_through_a_thin_box_top_from_3_5_m():
-    """Dropped from 3.5 m (8.3 m/s at impact, several mm per step) onto a 1 cm thick
-    box: no vertex is ever inside the box."""
+@SOLVERS
+def test_no_tunnelling_through_a_thin_box_top_from_3_5_m(solver):
+    """Dropped from 3.5 m (8.3 m/s at impact: several mm per explicit step, 14 cm per
+    implicit one at 1/60 s) onto a 1 cm thick box: no vertex is ever inside the box."""
     sim = _sim(10, 0.3, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
-                                          damping=0.0))
+                                          damping=0.0), solver=solver)
     box = dict(center=(0, 0, 0), half_extents=(0.5, 0.5, 0.005))
     sim.add_obstacle('box', **box)
     x = sim.mesh.vertices.copy()
@@ -251,9 +266,10 @@ def test_a_sphere_at_5_m_s_does_not_pass_through_a_hanging_cloth():
     assert sim.positions[:, 1].max() > 0.3
 
 
+@SOLVERS
 @pytest.mark.parametrize('mu, drags', [(1.0, True), (0.0, False)])
-def test_a_moving_box_drags_the_cloth_on_it_or_slips_under_it(mu, drags):
-    sim = _sim(10, 0.3)
+def test_a_moving_box_drags_the_cloth_on_it_or_slips_under_it(mu, drags, solver):
+    sim = _sim(10, 0.3, solver=solver)
     top = 0.05
     box = sim.add_obstacle('box', center=(0, 0, 0), half_extents=(1.0, 1.0, top),
                            friction=mu)
@@ -289,6 +305,56 @@ def test_a_cloth_dropped_on_the_ground_never_gains_energy():
         top = max(top, sim.energy()['total'])
     assert top <= e0 + 0.005 * scale, (top, e0)
     assert sim.energy()['kinetic'] < 0.05 * scale          # it comes to rest
+
+
+def test_a_tilted_drop_at_the_implicit_solvers_frame_step_never_gains_energy():
+    """Backward Euler at dt = 1/30 s: a 0.5 m cloth tilted by 0.5 rad falls 0.3 m and
+    lands edge first. Contact is part of the solve (core/solvers/implicit_contact.py):
+    the total energy never rises above its start (with contact corrected after the
+    solve it rose from 0.13 J to 0.45 J at impact) and the cloth comes to rest with no
+    strain left in it (0.11 J of it stayed then)."""
+    sim = _sim(16, 0.5, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                          damping=0.0), solver='implicit', dt=1.0 / 30.0)
+    sim.add_obstacle('plane')
+    c, s_ = math.cos(0.5), math.sin(0.5)
+    x = sim.mesh.vertices @ np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]]).T
+    x[:, 2] += 0.3
+    sim.set_positions(x)
+    e0 = sim.energy()['total']
+    scale = sim.coefficients.mass.sum() * G * 0.3
+    top = e0
+    for _ in range(24):
+        sim.step(1)
+        top = max(top, sim.energy()['total'])
+    e = sim.energy()
+    assert top <= e0 + 0.005 * scale, (top, e0)
+    assert e['kinetic'] < 1e-4 * scale and e['elastic'] < 1e-3 * scale, e
+
+
+@SOLVERS
+def test_a_stretched_cloth_on_the_ground_relaxes_until_friction_holds_it(solver):
+    """A cloth laid on the ground stretched by 2% contracts until static friction holds
+    it: at rest every vertex's tangential elastic force is within the Coulomb limit
+    mu m g (the ground is flat, so its normal force is the weight). A contact law
+    applied after an implicit solve sticks far too early: the solved velocity of a
+    vertex is its whole relaxation over dt, small against the friction limit mu g dt,
+    while the force that holds it is k dt^2 / m times larger (it left 0.7% of the
+    stretch, elastic forces 20 times the limit)."""
+    mu = 0.5
+    sim = _sim(12, 0.4, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                          damping=0.0), solver=solver)
+    sim.add_obstacle('plane', friction=mu)
+    x = sim.mesh.vertices.copy()
+    x[:, :2] *= 1.02
+    x[:, 2] = sim.contact_thickness
+    sim.set_positions(x)
+    stretched = sim.energy()['elastic']
+    sim.step(int(round(1.5 / sim.dt)))
+    assert sim.energy()['kinetic'] < 1e-4 * stretched          # at rest
+    ft = np.linalg.norm(sim.internal_forces()[:, :2], axis=1)
+    limit = mu * sim.coefficients.mass * G
+    assert np.all(ft <= 1.001 * limit), (ft / limit).max()
+    assert np.ptp(sim.positions[:, 0]) < 0.4 * 1.001        # 2% stretch down to < 0.1%
 
 
 def test_the_energy_balance_counts_contact_dissipation():

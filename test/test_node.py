@@ -226,10 +226,12 @@ def test_wind_blows_the_cloth_in_air_bad_wind_is_refused_and_it_lapses(h):
     assert h.node.sim.air is not None and h.node.sim.wind[2] == 0.5
     h.send('wind', field([0.0, 0.0, 6.0], frame=''))
     assert h.spin_until(lambda: h.node.sim.wind[2] == 6.0, 5)
-    h.spin(0.2)
-    # the air force of the steps the node takes: upwards, the way the wind blows
-    c = h.node.sim.control
-    assert (c.f_applied - c.f_external)[:, 2].sum() > 0.01
+    # the air force of the steps the node takes: upwards, the way the wind blows (waited
+    # for, not a fixed 0.2 s: a loaded host may take no step in that time)
+    def lifted():
+        c = h.node.sim.control
+        return (c.f_applied - c.f_external)[:, 2].sum() > 0.01
+    assert h.spin_until(lifted, 5)
     for bad, why in ((field([np.nan, 0, 0]), 'non-finite'), (field([1, 0, 0], 'map'), 'frame'),
                      (field([0, 0, 60.0]), 'max_wind')):
         n = h.node.rejected['wind']
@@ -661,7 +663,10 @@ def test_table_config_reports_the_weight_on_the_table():
     try:
         names = {d['name'] for d in node.sim.obstacles.values()}
         assert names == {'table', 'ground'}
-        node.sim.step(int(round(4.0 / node.sim.dt)))      # settle without pacing
+        # settle without pacing: at 4 s the drape still swings (kinetic 2e-4 J) and the
+        # table's force is the weight within +-2%, depending on the last bits of the step
+        # (one host saw 0.982, another passed); from 5 s it stays within 0.5%
+        node.sim.step(int(round(6.0 / node.sim.dt)))
         end = time.monotonic() + 10
         while time.monotonic() < end and not got:
             node.publish_state()

@@ -157,6 +157,9 @@ def _compile(tiled: bool, coupled: bool):
     from .solvers.update import contact_range
     contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v, sim.control,
                   sim.coefficients, sim.dt)
+    # the implicit solver's contact kernels (the rest of that solver is the step's force)
+    from .solvers.implicit_contact import warm as warm_implicit_contact
+    warm_implicit_contact(sim.state.x, sim.control)
     # self-collision's kernels (called from Python after each step: none is inlined)
     from .self_contact import warm
     warm()

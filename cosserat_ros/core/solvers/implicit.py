@@ -50,9 +50,17 @@ derivative (``air.drag_blocks``: ``f_air(v') ~ f_air(v) - D (v' - v)``, D per ve
 symmetric positive semi-definite), so that the drag is implicit too: its term
 ``(x' - x - dt v)^T D (x' - x - dt v) / (2 dt)`` joins Phi and ``D / dt`` joins A, and a
 strong wind does not force a small step (the explicit drag is unstable above ``dt ~ 2 mu
-/ (rho C_D |u|)``, 1/60 s for polyester at 20 m/s). The lift stays explicit. Contact
-(:func:`.update.contact_range`) runs after the solve as in the explicit update, on the
-step's start and end positions.
+/ (rho C_D |u|)``, 1/60 s for polyester at 20 m/s). The lift stays explicit.
+
+Contact with obstacles is part of the solve (:mod:`.implicit_contact`): a vertex that
+reaches an obstacle's contact layer in the step is constrained in it, sticking (all three
+coordinates fixed, like a pin) or sliding (the normal one fixed, kinetic friction as an
+applied force); the conjugate gradients run on the free coordinates only (the filter of
+Baraff & Witkin 1998, Sec. 5.3: the residual, the matrix products and the preconditioner's
+output projected), the residual at the fixed ones is the contact force, and the Signorini
+and Coulomb conditions on it change the set and solve the step again (at most
+``implicit_contact.ROUNDS`` solves). What the last solve leaves inside a layer is answered
+afterwards by the explicit update's contact (:func:`.update.contact_list`).
 
 ``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
 step's solve did (Newton iterations, CG iterations, residual, converged).
@@ -66,7 +74,8 @@ import numpy as np
 from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
 from ..terms import TERMS
-from .update import contact_range
+from .implicit_contact import FREE, ROUNDS, STICK, ObstacleConstraints, push_list
+from .update import contact_list
 
 __all__ = ['ImplicitSolver', 'SolveReport']
 
@@ -127,6 +136,7 @@ class ImplicitSolver:
         #: CG iterations above which the factored preconditioner is rebuilt
         self.refresh = 8
         self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
+        self._contacts = ObstacleConstraints(n)
 
     # ------------------------------------------------------------------ pieces
     def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
@@ -163,7 +173,8 @@ class ImplicitSolver:
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
         whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
         coupling diagonal blocks, with the
-        pinned rows and columns replaced by the identity; factored by SuperLU."""
+        rows and columns of ``pinned`` (the pins and the vertices that stick to an
+        obstacle) replaced by the identity; factored by SuperLU."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
@@ -229,15 +240,86 @@ class ImplicitSolver:
         # whole applied force as if nothing resisted it, and a 10 N pull on one light
         # vertex puts y metres away and the first residuals at 1e11 N
         xk = np.where(free[:, None], xn + dt * vn, xn + dt * u)
+        con = None
+        if control.obstacles.shape[0] > 0:
+            con = self._contacts
+            con.begin(xn, vn, y, free, control, dt)
+        th = control.contact_params[0]
+        rep = self.last
+        rep.iterations = rep.cg_iterations = rep.factorizations = 0
         f = self._f
+        # the forces on each vertex other than the elastic one, for the round-off floor
+        outer = np.linalg.norm(fa, axis=1) + mass[:, 0] * np.linalg.norm(g)
+        for round_ in range(ROUNDS if con is not None else 1):
+            yr, out = y, outer
+            if con is not None:
+                if con.active:
+                    yr = y + dt ** 2 * con.friction / mass
+                    out = outer + np.linalg.norm(con.friction, axis=1)
+                con.project(xn, xk, dt, th)
+            r = self._newton(xk, yr, xn, vn, f, pinned, con, coeff, diag, drag, drag_dt,
+                             dt, out)
+            if r is None:
+                return False
+            if con is None or not con.update(xn, xk, r, free, control, dt,
+                                              final=round_ == ROUNDS - 1):
+                break
+        # the end of the step: velocities, the pins' reactions, the balance
+        vk = (xk - xn) / dt
+        vk[pinned] = u[pinned]
+        xk[pinned] = (xn + dt * u)[pinned]
+        if np.any(np.sum(vk * vk, axis=1) > vmax2):
+            return False
+        self.internal_forces(xk, coeff, f)
+        if drag is not None:                     # the applied force the step used
+            fa = fa - np.einsum('nij,nj->ni', drag, vk - vn)
+        # the force the step's own forces leave unbalanced: a pin's reaction, an
+        # obstacle's contact force (friction included)
+        react = mass * (vk - vn) / dt - (f + fa + mass * g - damp * vk)
+        control.reaction[pinned] = react[pinned]
+        dx = dt * vk
+        work = float(np.sum((fa * dx)[free]) + np.sum((react * dx)[pinned]))
+        diss = float(np.sum((damp * vk * dx)[free]))
+        x[:] = xk
+        v[:] = vk
+        if con is not None:
+            held, w, d = con.finish(xn, xk, react, control, dt)
+            rest = np.flatnonzero(con.mode == FREE)
+            w2, d2 = contact_list(rest, 0, len(rest), x, v, control, coeff, dt)
+            push_list(held, x, control.obstacles, control.sdf_meta, control.sdf_data, th)
+            work += w + w2
+            diss += d + d2
+        state.acc[0] += work
+        state.acc[1] += diss
+        return True
+
+    def _newton(self, xk, y, xn, vn, f, pinned, con, coeff, diag, drag, drag_dt, dt,
+                outer):
+        """Minimise Phi (module docstring; ``y`` with the applied forces and friction)
+        from ``xk`` in place over the free coordinates; ``f`` ends as the internal force
+        at ``xk``; ``outer`` (n,) the size of each vertex's other forces [N]. Returns the
+        residual there before the filter (at a fixed coordinate: the force its
+        constraint exerts), or None if it is not finite."""
+        mass = coeff.mass[:, None]
+        damp = coeff.damp[:, None]
+        rep = self.last
+        held = pinned if con is None or not con.active else pinned | (con.mode == STICK)
+
+        def filt(a):
+            a[pinned] = 0.0
+            if con is not None:
+                con.filter(a)
+            return a
+
+        def raw(xx, ff):
+            r = mass / dt ** 2 * (xx - y) + damp / dt * (xx - xn) - ff
+            if drag is not None:
+                r += np.einsum('nij,nj->ni', drag, (xx - xn) / dt - vn)
+            return r
 
         def residual(xx, out_f):
             self.internal_forces(xx, coeff, out_f)
-            r = mass / dt ** 2 * (xx - y) + damp / dt * (xx - xn) - out_f
-            if drag is not None:
-                r += np.einsum('nij,nj->ni', drag, (xx - xn) / dt - vn)
-            r[pinned] = 0.0
-            return r
+            return filt(raw(xx, out_f))
 
         def potential(xx):
             d = xx - y
@@ -249,40 +331,43 @@ class ImplicitSolver:
                 phi_ += 0.5 / dt * float(np.einsum('ni,nij,nj->', q, drag, q))
             return float(phi_)
 
-        rep = self.last
-        rep.iterations = rep.cg_iterations = rep.factorizations = 0
         r = residual(xk, f)
         rmax0 = float(np.max(np.linalg.norm(r, axis=1)))
         # below this the residual is round-off (and the finite-difference products'
         # error): 1e-8 of the largest force on a vertex, elastic, applied or weight
-        floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + np.linalg.norm(fa, axis=1)
-                                    + mass[:, 0] * np.linalg.norm(g)))
+        floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + outer))
         floor = max(floor, 1e-300)
         rmax = rmax0
         res = 1.0 if rmax0 > 0.0 else 0.0
         r0 = np.linalg.norm(r)
         phi = None
-        while (res > self.tolerance and rmax > floor
-               and rep.iterations < self.iterations):
+        it = 0
+        while res > self.tolerance and rmax > floor and it < self.iterations:
             if not np.isfinite(res):
-                return False
+                return None
             key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
-                   pinned.tobytes(), drag is None)
+                   held.tobytes(), drag is None)
             if self._pinv is None or self._pinv_key != key:
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, pinned)
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
                 self._pinv_key = key
                 rep.factorizations += 1
+            pinv = self._pinv
+            if con is not None and con.active:
+                base = pinv
+
+                def pinv(q, base=base):
+                    return filt(base(filt(q.copy())))
             eta = min(0.5, np.sqrt(np.linalg.norm(r) / r0))
-            p, used = self._cg(xk, f, r, diag, drag_dt, self._pinv, pinned, coeff, eta)
+            p, used = self._cg(xk, f, r, diag, drag_dt, pinv, filt, coeff, eta)
             if used > self.refresh:              # P has drifted from A: factor it again
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, pinned)
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
                 rep.factorizations += 1
             rep.cg_iterations += used
             if phi is None:
                 phi = potential(xk)
             slope = float(np.sum(r * p))
             if not slope < 0.0:                  # not a descent direction: steepest descent
-                p = -self._pinv(r)
+                p = -pinv(r)
                 slope = float(np.sum(r * p))
             alpha = 1.0
             rt = None
@@ -301,44 +386,24 @@ class ImplicitSolver:
                 alpha *= 0.5
             else:
                 break                            # no decrease even at 2^-30: stalled
-            xk = xt
+            xk[:] = xt
             phi = pt
             r = rt if rt is not None else residual(xk, f)
             rmax = float(np.max(np.linalg.norm(r, axis=1)))
             res = rmax / rmax0
-            rep.iterations += 1
+            it += 1
+        rep.iterations += it
         rep.residual = res
         rep.converged = bool(res <= self.tolerance or rmax <= floor)
         if not rep.converged:
             rep.unconverged_steps += 1
         if not np.all(np.isfinite(xk)):
-            return False
-        # the end of the step: velocities, the pins' reactions, the balance
-        vk = (xk - xn) / dt
-        vk[pinned] = u[pinned]
-        xk[pinned] = (xn + dt * u)[pinned]
-        if np.any(np.sum(vk * vk, axis=1) > vmax2):
-            return False
-        self.internal_forces(xk, coeff, f)
-        if drag is not None:                     # the applied force the step used
-            fa = fa - np.einsum('nij,nj->ni', drag, vk - vn)
-        react = mass * (vk - vn) / dt - (f + fa + mass * g - damp * vk)
-        control.reaction[pinned] = react[pinned]
-        dx = dt * vk
-        work = float(np.sum((fa * dx)[free]) + np.sum((react * dx)[pinned]))
-        diss = float(np.sum((damp * vk * dx)[free]))
-        x[:] = xk
-        v[:] = vk
-        if control.obstacles.shape[0] > 0:
-            w, d = contact_range(0, len(x), x, v, control, coeff, dt)
-            work += w
-            diss += d
-        state.acc[0] += work
-        state.acc[1] += diss
-        return True
+            return None
+        return raw(xk, f)
 
-    def _cg(self, xk, f, r, diag, drag_dt, pinv, pinned, coeff, eta):
-        """Truncated PCG for ``A p = -r`` (module docstring); returns (p, iterations)."""
+    def _cg(self, xk, f, r, diag, drag_dt, pinv, filt, coeff, eta):
+        """Truncated PCG for ``A p = -r`` on the free coordinates (``filt`` zeroes the
+        others, module docstring); returns (p, iterations)."""
         fq = self._fq
         b = -r
         p = np.zeros_like(r)
@@ -357,7 +422,7 @@ class ImplicitSolver:
             ad = diag * d - (fq - f) / eps
             if drag_dt is not None:
                 ad += np.einsum('nij,nj->ni', drag_dt, d)
-            ad[pinned] = 0.0
+            filt(ad)
             curv = float(np.sum(d * ad))
             if not curv > 0.0:                   # negative curvature (or NaN): stop here
                 return (p if k > 0 else d), k + 1
