@@ -134,9 +134,11 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
     """A 0.5 m cloth, nearly upright, its lower edge 0.5 m above the ground, falls and
     folds onto itself; with the explicit solver the energy never rises above its start.
     The implicit solver at dt = 1/30 s (a relative motion of ~10 thicknesses a step: the
-    response in stages); its energy is not checked here: the ground's contact, applied
-    after its solve (issue 26), adds elastic energy at the impact with or without
-    self-collision (0.36 -> 1.41 J at the tenth step, the same numbers either way)."""
+    response in stages), until it lies crumpled (0.9 s); its energy is not checked here:
+    the ground's contact is part of its solve (without self-collision the same drop
+    never gains energy: test_contact.py), but self-collision answers after the solve and
+    fights it, so its solves hit the iteration limit and the energy rises to 2.5 times
+    its start."""
     if solver == 'explicit':
         sim = _sim(16, 16, 0.5, 0.5)
     else:
@@ -158,7 +160,7 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
         folded.append(sim.self_contact_state()['active'])
         if solver == 'explicit':
             assert sim.energy()['total'] <= e0 * 1.005
-    _frames(sim, 1.5, each)
+    _frames(sim, 1.5 if solver == 'explicit' else 0.9, each)
     assert max(folded) > 0                                  # it did touch itself
     assert sim.positions[:, 2].max() < 0.15                 # and lies crumpled
     assert sim.positions[:, 2].min() > 0.9 * sim.contact_thickness

@@ -74,7 +74,7 @@ import numpy as np
 from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
 from ..terms import TERMS
-from .implicit_contact import FREE, ROUNDS, STICK, ObstacleConstraints, push_list
+from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .update import contact_list
 
 __all__ = ['ImplicitSolver', 'SolveReport']
@@ -250,7 +250,8 @@ class ImplicitSolver:
         f = self._f
         # the forces on each vertex other than the elastic one, for the round-off floor
         outer = np.linalg.norm(fa, axis=1) + mass[:, 0] * np.linalg.norm(g)
-        for round_ in range(ROUNDS if con is not None else 1):
+        scale = [0.0]        # the residual at the step's start: every round's tolerance
+        for round_ in range(ROUNDS + ADDS if con is not None else 1):
             yr, out = y, outer
             if con is not None:
                 if con.active:
@@ -258,11 +259,11 @@ class ImplicitSolver:
                     out = outer + np.linalg.norm(con.friction, axis=1)
                 con.project(xn, xk, dt, th)
             r = self._newton(xk, yr, xn, vn, f, pinned, con, coeff, diag, drag, drag_dt,
-                             dt, out)
+                             dt, out, scale)
             if r is None:
                 return False
             if con is None or not con.update(xn, xk, r, free, control, dt,
-                                              final=round_ == ROUNDS - 1):
+                                              adds_only=round_ >= ROUNDS - 1):
                 break
         # the end of the step: velocities, the pins' reactions, the balance
         vk = (xk - xn) / dt
@@ -294,11 +295,14 @@ class ImplicitSolver:
         return True
 
     def _newton(self, xk, y, xn, vn, f, pinned, con, coeff, diag, drag, drag_dt, dt,
-                outer):
+                outer, scale):
         """Minimise Phi (module docstring; ``y`` with the applied forces and friction)
         from ``xk`` in place over the free coordinates; ``f`` ends as the internal force
-        at ``xk``; ``outer`` (n,) the size of each vertex's other forces [N]. Returns the
-        residual there before the filter (at a fixed coordinate: the force its
+        at ``xk``; ``outer`` (n,) the size of each vertex's other forces [N]; ``scale``
+        a one-element list, the largest residual at the step's start (set by the
+        step's first solve; a contact round after it starts near a solution, and its
+        tolerance stays relative to the step's forces, not to that small start). Returns
+        the residual there before the filter (at a fixed coordinate: the force its
         constraint exerts), or None if it is not finite."""
         mass = coeff.mass[:, None]
         damp = coeff.damp[:, None]
@@ -332,13 +336,15 @@ class ImplicitSolver:
             return float(phi_)
 
         r = residual(xk, f)
-        rmax0 = float(np.max(np.linalg.norm(r, axis=1)))
+        rmax = float(np.max(np.linalg.norm(r, axis=1)))
+        if scale[0] == 0.0:
+            scale[0] = rmax
+        rmax0 = max(rmax, scale[0])
         # below this the residual is round-off (and the finite-difference products'
         # error): 1e-8 of the largest force on a vertex, elastic, applied or weight
         floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + outer))
         floor = max(floor, 1e-300)
-        rmax = rmax0
-        res = 1.0 if rmax0 > 0.0 else 0.0
+        res = rmax / rmax0 if rmax0 > 0.0 else 0.0
         r0 = np.linalg.norm(r)
         phi = None
         it = 0
