@@ -59,8 +59,9 @@ applied force); the conjugate gradients run on the free coordinates only (the fi
 Baraff & Witkin 1998, Sec. 5.3: the residual, the matrix products and the preconditioner's
 output projected), the residual at the fixed ones is the contact force, and the Signorini
 and Coulomb conditions on it change the set and solve the step again (at most
-``implicit_contact.ROUNDS`` solves). What the last solve leaves inside a layer is answered
-afterwards by the explicit update's contact (:func:`.update.contact_list`).
+``ROUNDS + ADDS`` solves, :mod:`.implicit_contact`). What the last solve leaves inside a
+layer is answered afterwards by the explicit update's contact
+(:func:`.update.contact_list`).
 
 ``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
 step's solve did (Newton iterations, CG iterations, residual, converged).

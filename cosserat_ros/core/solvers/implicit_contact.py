@@ -48,12 +48,14 @@ decide the set, the Signorini and Coulomb conditions:
 * SLIDE whose slip turned against its friction force: friction stopped it: STICK;
 * a free vertex whose solved position is inside the layer: STICK.
 
-and the step is solved again from where it ended, at most :data:`ROUNDS` times (the
-friction of a sliding vertex is lagged: its normal force and direction from the last
-solve). A vertex inside the layer at the step's start is held where it is, not pushed
-out by the solve: :func:`..contact.push_out` puts it back on the layer afterwards, a
-position change without velocity as in the explicit update; so does any vertex the last
-round left inside. Each vertex takes the obstacle whose linearised gap is the most
+and the step is solved again from where it ended (the friction of a sliding vertex is
+lagged: its normal force and direction from the last solve). A vertex changes between
+stick and slide once per step at most; after :data:`ROUNDS` solves only vertices a solve
+took inside a layer join the set (at most :data:`ADDS` more solves), so that none is
+left to a correction after the solve, which would move it without its neighbours. A
+vertex inside the layer at the step's start is held where it is, not pushed out by the
+solve: :func:`..contact.push_out` puts it back on the layer afterwards, a position
+change without velocity as in the explicit update. Each vertex takes the obstacle whose linearised gap is the most
 negative; a second obstacle it meets in the same step is left to the explicit contact's
 correction after the solve.
 
@@ -72,8 +74,8 @@ from ..compiled import kernel
 from ..contact import (C_FORCE, C_GAP, C_ID, MU_K, MU_S, SPEED, _far,
                                        _point_velocity, distance, push_out)
 
-__all__ = ['ObstacleConstraints', 'FREE', 'STICK', 'SLIDE', 'ROUNDS', 'ADDS', 'frames', 'push_list',
-           'warm']
+__all__ = ['ObstacleConstraints', 'FREE', 'STICK', 'SLIDE', 'ROUNDS', 'ADDS', 'frames',
+           'push_list', 'warm']
 
 FREE, STICK, SLIDE = 0, 1, 2
 #: solves per step that may change the set any way (the first plus re-solves after the
