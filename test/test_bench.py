@@ -113,3 +113,21 @@ def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
     rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| issue6')
             or l.startswith('| stiff')]
     assert len(rows) == 2 and all(float(r.split('|')[6]) > 0 for r in rows)   # RTF
+
+
+def test_self_part_folds_the_cloth_into_touching_layers_without_stretching_it(capsys):
+    mesh = bench.grid_mesh(40, 40)
+    th = 2e-3
+    x = bench.pleated_positions(mesh, th)
+    e = mesh.edges
+    rest = np.linalg.norm(np.diff(mesh.vertices[e], axis=1)[:, 0], axis=1)
+    now = np.linalg.norm(np.diff(x[e], axis=1)[:, 0], axis=1)
+    assert np.all(now <= rest * (1 + 1e-12))                 # chords: never stretched
+    assert np.median(now / rest) == pytest.approx(1.0)       # flat away from the folds
+    layers = np.unique(np.round((x[:, 2] - th) / (1.5 * th), 6))
+    assert x[:, 2].min() == pytest.approx(th) and len(layers) > bench.PLEATS
+    assert np.ptp(x[:, 0]) < 1.0 / bench.PLEATS + 2 * th      # one pleat wide
+    bench.part_self([24], pairs=1, batch_s=0.01)
+    row = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| 24 |')][0]
+    cells = [c.strip() for c in row.split('|')[1:-1]]
+    assert float(cells[3]) > 0 and int(cells[6]) > 0         # it stepped; layers touch

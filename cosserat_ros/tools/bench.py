@@ -4,7 +4,9 @@ Two scenes (:data:`.peer_mujoco.SCENES`): the one of issue 6 (a 1 m square sheet
 grid, all four edges pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3,
 D = 1e-4 N m, no coupling) and the shipped ``config/cloth.yaml`` (its material, coupling
 phi = 1e-6 N included, pinned at the two top corners). Shared machines are noisy: compare
-ratios measured in one run. Three parts:
+ratios measured in one run. Parts (the later ones each print a table of their own:
+``contact``, ``air``, ``implicit``, ``self`` -- the shipped cloth folded in layers on the
+ground, the step with self-collision on and off, and how its extra cost grows with N):
 
 1. ``ours``, per scene: for each N, the median ms/step of repeated batches after warm-up
    (forces + integration, no publishing), the cost per vertex, steps/s, the largest stable
@@ -393,6 +395,78 @@ def part_air(sizes, pairs: int = 9, batch_s: float = 0.1):
               flush=True)
 
 
+# --------------------------------------------------------------------------- self-collision
+
+#: pleats of the folded cloth of the self-collision part
+PLEATS = 8
+
+
+def pleated_positions(mesh: ClothMesh, thickness: float, pleats: int = PLEATS) -> np.ndarray:
+    """The flat N x N sheet folded along x into ``pleats`` layers stacked 1.5 contact
+    thicknesses apart, each fold a half circle (radius 0.75 thicknesses) laid out by arc
+    length, so that no edge is longer than at rest (an edge across a fold is the chord
+    of the path it spans): a cloth lying folded on the ground, its lowest layer at the
+    height of its thickness."""
+    X = mesh.vertices
+    u = X[:, 0] - X[:, 0].min()
+    r = 0.75 * thickness
+    period = (u.max() + 1e-12) / pleats
+    flat = period - math.pi * r
+    p = np.minimum(np.floor(u / period), pleats - 1)
+    s = u - p * period
+    theta = np.clip((s - flat) / r, 0.0, math.pi)
+    xl = np.where(s < flat, s, flat + r * np.sin(theta))
+    zl = np.where(s < flat, 0.0, r * (1.0 - np.cos(theta)))
+    x = np.where(p % 2 == 0, xl, flat - xl)
+    return np.stack([x, X[:, 1], thickness + 2.0 * r * p + zl], axis=1)
+
+
+def folded_scene(n: int, self_collision: bool, settle_s: float = 0.03) -> ClothSimulator:
+    """The shipped cloth (``config/cloth.yaml``'s material, no pins) folded in
+    :data:`PLEATS` layers (:func:`pleated_positions`) on the ground under gravity, with
+    self-collision on or off, after ``settle_s`` of simulation (the layers settle onto
+    each other)."""
+    mesh = grid_mesh(n, n)
+    sim = ClothSimulator(mesh, scene_material(CLOTH), dt=1e-5, check_dt=False)
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    # half the critical step of the flat sheet: folded without self-collision, its layers
+    # pass through each other, and at 0.9 of it that crumpled state diverged at 0.48 s
+    sim.dt = 0.5 * sim.critical_dt()
+    sim.set_positions(pleated_positions(mesh, sim.contact_thickness))
+    sim.add_obstacle('plane')
+    sim.self_collision = self_collision
+    sim.step(max(1, int(round(settle_s / sim.dt))))
+    return sim
+
+
+def part_self(sizes, pairs: int = 5, batch_s: float = 0.1):
+    print(f'\n## self-collision: the shipped cloth folded in {PLEATS} layers on the '
+          'ground\n')
+    print('ms per step with self-collision on and off (the same folded cloth, settled '
+          '0.03 s at half the flat sheet\'s critical step: the layers fall the half thickness '
+          'between them), in alternating '
+          'back-to-back batches, median of the ratios; "extra": '
+          'what self-collision adds, per vertex; pairs: vertex-triangle and edge-edge '
+          'pairs within the thickness after the batches. The growth of the extra cost is '
+          'fitted as vertices^k over the sizes.\n')
+    _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
+            'extra us/vertex', 'pairs', 'rebuilds'))
+    nv, extra = [], []
+    for n in sizes:
+        sims = (folded_scene(n, False), folded_scene(n, True))
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        st = sims[1].self_contact_state()
+        v = sims[0].n_vertices
+        nv.append(v)
+        extra.append(max(ms1 - ms0, 1e-9))
+        print(f'| {n} | {v} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
+              f'{1e3 * (ms1 - ms0) / v:.3f} | {st["active"]} | {st["builds"]} |', flush=True)
+    if len(nv) > 1:
+        k = np.polyfit(np.log(nv), np.log(extra), 1)[0]
+        print(f'\nextra cost ~ vertices^{k:.2f} from {nv[0]} to {nv[-1]} vertices '
+              '(n log n over this range: ~1.1)')
+
+
 # --------------------------------------------------------------------------- the node
 
 def _node_params(path: str, n: int, material: Material, dt: float, pinned):
@@ -608,6 +682,8 @@ def main(argv=None):
                     help='N for the air part (none: skip it)')
     ap.add_argument('--implicit-sizes', type=int, nargs='*', default=[20, 40, 80],
                     help='N for the implicit-solver part (none: skip it)')
+    ap.add_argument('--self-sizes', type=int, nargs='*', default=[40, 80, 160],
+                    help='N for the self-collision part (none: skip it)')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
@@ -624,6 +700,8 @@ def main(argv=None):
         part_air(a.air_sizes)
     if a.implicit_sizes:
         part_implicit(a.implicit_sizes)
+    if a.self_sizes:
+        part_self(a.self_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')
