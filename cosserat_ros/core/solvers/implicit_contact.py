@@ -85,11 +85,10 @@ ADDS = 4
 
 
 @kernel()
-def frames(x, pred, free, dt, ob, meta, data, th, k_out, d_out, n_out, vo_out, gap_out):
+def frames(x, pred, free, dt, ob, meta, data, th, k_out, d_out, n_out, vo_out):
     """For every free vertex i: of the obstacles whose linearised gap at ``pred[i]``
     (module docstring) is negative, the one where it is the most negative: its row
-    (``k_out``, -1 for none), distance ``d`` [m], normal and velocity at ``x[i]``, and
-    that gap [m]."""
+    (``k_out``, -1 for none), distance ``d`` [m], normal and velocity at ``x[i]``."""
     for i in range(x.shape[0]):
         k_out[i] = -1
         if not free[i]:
@@ -118,7 +117,6 @@ def frames(x, pred, free, dt, ob, meta, data, th, k_out, d_out, n_out, vo_out, g
                 vo_out[i, 0] = o0
                 vo_out[i, 1] = o1
                 vo_out[i, 2] = o2
-        gap_out[i] = best
 
 
 @kernel()
@@ -148,14 +146,13 @@ class ObstacleConstraints:
         self._d = np.zeros(n)
         self._n = np.zeros((n, 3))
         self._vo = np.zeros((n, 3))
-        self._gap = np.zeros(n)
 
     # ------------------------------------------------------------------ the set
     def _find(self, xn, pred, free, control, dt):
         """Rows etc. of the vertices whose linearised gap at ``pred`` is negative:
         a boolean mask; the frames in the ``_k.._vo`` scratch arrays."""
         frames(xn, pred, free, dt, control.obstacles, control.sdf_meta, control.sdf_data,
-               control.contact_params[0], self._k, self._d, self._n, self._vo, self._gap)
+               control.contact_params[0], self._k, self._d, self._n, self._vo)
         return self._k >= 0
 
     def _take(self, sel):
