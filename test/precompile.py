@@ -35,6 +35,8 @@ def main():
     s.contact_forces()
     from cosserat_ros.core.self_contact import warm
     warm()                                       # self-collision's kernels
+    from cosserat_ros.core.features import warm as warm_features
+    warm_features()                              # a box's corners and edges
     for phi in (0.0, 1e-6):                      # the implicit solver's kernels
         s = _sim(6, phi, solver='implicit')
         s.dt = 1.0 / 60.0

@@ -386,17 +386,23 @@ class ObstacleSet:
         self._rebuild()
 
     # ------------------------------------------------------------------ forces
-    def forces(self, x: np.ndarray, contact: np.ndarray) -> Dict[int, tuple]:
+    def forces(self, x: np.ndarray, contact: np.ndarray,
+               extra: Optional[np.ndarray] = None) -> Dict[int, tuple]:
         """{id: (force (3), torque (3) about the obstacle's position)} that the cloth
         exerts on each obstacle over the last step: minus the contact forces on the
-        vertices whose contact was with it."""
+        vertices whose contact was with it, plus ``extra[row]`` (force, torque) where
+        given (a box's corners and edges, :mod:`.features`)."""
         out = {}
         rows = contact[:, C.C_ID].astype(np.int64)
         for r, oid in enumerate(self.ids):
             sel = rows == r
             f = -contact[sel, C.C_FORCE:C.C_FORCE + 3]
             arm = x[sel] - self._items[oid].position
-            out[oid] = (f.sum(0), np.cross(arm, f).sum(0))
+            force, torque = f.sum(0), np.cross(arm, f).sum(0)
+            if extra is not None and r < len(extra):
+                force = force + extra[r, :3]
+                torque = torque + extra[r, 3:]
+            out[oid] = (force, torque)
         return out
 
 

@@ -324,9 +324,11 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
 
 
 @kernel(inline='always')
-def _gap(p, x, x0, gi, gw, gn, gd):
-    """Gap of pair p at the step's end, along its normal at the start."""
-    g = gd[p]
+def _gap(p, x, x0, gi, gw, gn, gd, go):
+    """Gap of pair p at the step's end, along its normal at the start; ``go[p]``: side
+    B's own displacement over the step when it is not the cloth (a moving obstacle's
+    point, :mod:`.features`; zero here)."""
+    g = gd[p] - (gn[p, 0] * go[p, 0] + gn[p, 1] * go[p, 1] + gn[p, 2] * go[p, 2])
     for k in range(4):
         j = gi[p, k]
         g += gw[p, k] * (gn[p, 0] * (x[j, 0] - x0[j, 0]) + gn[p, 1] * (x[j, 1] - x0[j, 1])
@@ -335,11 +337,11 @@ def _gap(p, x, x0, gi, gw, gn, gd):
 
 
 @kernel(inline='always')
-def _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep):
+def _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep):
     """How far pair p falls short of its target at the step's end [m]: the target from
     its distance ``g0[p]`` where the whole step began, the gap linearised at x0; the pair
     is short when this exceeds the slack ``SLACK th``."""
-    return _target(g0[p], th, sep) - _gap(p, x, x0, gi, gw, gn, gd)
+    return _target(g0[p], th, sep) - _gap(p, x, x0, gi, gw, gn, gd, go)
 
 
 @kernel(inline='always')
@@ -351,8 +353,8 @@ def _target(d, th, sep):
 
 
 @kernel(parallel=True)
-def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, g0, first,
-                   th, sep, flag):
+def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, go, g0,
+                   first, th, sep, flag):
     """The constraint of each live candidate ``live[:nlive]`` (an index into the
     vertex-triangle pairs, then the edge-edge pairs) at the step's start x0 (module
     docstring), in slot p of: vertices
@@ -434,17 +436,16 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
         gd[p] = d
         if first:
             g0[p] = d
-        flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > SLACK * th else 0
+        flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep) > SLACK * th else 0
 
 
 @kernel()
-def _short(x, x0, gi, gw, gn, gd, g0, npair, th, sep, flag):
-    """flag[p] = 1 for every pair short of its target by more than the slack; returns
-    how many."""
-    slack = SLACK * th
+def _short(x, x0, gi, gw, gn, gd, go, g0, npair, th, sep, slack, flag):
+    """flag[p] = 1 for every pair short of its target by more than ``slack`` [m];
+    returns how many."""
     k = 0
     for p in range(npair):
-        f = 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > slack else 0
+        f = 1 if _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep) > slack else 0
         flag[p] = f
         k += f
     return k
@@ -488,12 +489,12 @@ def _all_onto_obstacles(x, v, dt, inv, mass, ob, meta, data, th, contact):
 
 
 @kernel()
-def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, g0, th, sep, mu, dt, ob, meta, data,
-             contact):
+def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, go, g0, th, sep, slack, mu, dt, ob,
+             meta, data, contact):
     """The impulse of pair p (module docstring) if it is short of its target; returns 1
     if it acted, else 0 (also for a pair without weight: degenerate, or all pinned)."""
-    short = _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep)
-    if short <= SLACK * th:
+    short = _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep)
+    if short <= slack:
         return 0
     W = 0.0
     for k in range(4):
@@ -505,9 +506,9 @@ def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, g0, th, sep, mu, dt, ob, me
     n1 = gn[p, 1]
     n2 = gn[p, 2]
     # relative tangential motion of the step (before this normal correction)
-    r0 = 0.0
-    r1 = 0.0
-    r2 = 0.0
+    r0 = -go[p, 0]
+    r1 = -go[p, 1]
+    r2 = -go[p, 2]
     for k in range(4):
         j = gi[p, k]
         r0 += gw[p, k] * (x[j, 0] - x0[j, 0])
@@ -542,8 +543,8 @@ def _inverse_mass(mass, pinned, inv):
 
 
 @kernel()
-def respond(x, x0, v, inv, mass, gi, gw, gn, gd, g0, npair, th, mu, dt, sep, flag, active,
-            ob, meta, data, contact, stats):
+def respond(x, x0, v, inv, mass, gi, gw, gn, gd, go, g0, npair, th, mu, dt, sep, slack,
+            flag, active, ob, meta, data, contact, stats):
     """The response of the module docstring over the live pairs' constraints (from
     :func:`_pair_geometry`, which also flagged the short ones); x and v in place; inverse
     masses ``inv`` (:func:`_inverse_mass`). ``stats``: (pairs that acted, rounds, sweeps,
@@ -555,7 +556,7 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, g0, npair, th, mu, dt, sep, fla
     na = 0
     for rnd in range(ROUNDS):
         # the first round's flags come with the geometry (:func:`_pair_geometry`)
-        if rnd > 0 and _short(x, x0, gi, gw, gn, gd, g0, npair, th, sep, flag) == 0:
+        if rnd > 0 and _short(x, x0, gi, gw, gn, gd, go, g0, npair, th, sep, slack, flag) == 0:
             break
         na = 0
         for p in range(npair):
@@ -569,8 +570,8 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, g0, npair, th, mu, dt, sep, fla
             sweeps += 1
             moved = 0
             for q in range(na):
-                moved += _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, g0, th,
-                                  sep, mu, dt, ob, meta, data, contact)
+                moved += _project(active[q], x, x0, v, inv, mass, gi, gw, gn, gd, go, g0,
+                                  th, sep, slack, mu, dt, ob, meta, data, contact)
             if sw == 0:
                 acted += moved
             if moved == 0:
@@ -582,8 +583,8 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, g0, npair, th, mu, dt, sep, fla
     if rounds > 0:
         for q in range(na):
             p = active[q]
-            closest = min(closest, _gap(p, x, x0, gi, gw, gn, gd))
-            left += 1 if _deficit(p, x, x0, gi, gw, gn, gd, g0, th, sep) > SLACK * th else 0
+            closest = min(closest, _gap(p, x, x0, gi, gw, gn, gd, go))
+            left += 1 if _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep) > slack else 0
     stats[0] = acted
     stats[1] = rounds
     stats[2] = sweeps
@@ -711,6 +712,7 @@ class SelfCollision:
         self.gw = np.zeros((p, 4))
         self.gn = np.zeros((p, 3))
         self.gd = np.zeros(p)
+        self.go = np.zeros((p, 3))            # side B is the cloth: it moves itself
         self.g0 = np.zeros(p)
         self.flag = np.zeros(p, np.int64)
         self.active = np.zeros(p, np.int64)
@@ -743,11 +745,12 @@ class SelfCollision:
         first time, which sets each pair's target), and the response to them."""
         sep = SEP_SPEED * dt
         _pair_geometry(start, x, self.faces, self.edges, self.vt, self.nvt, self.ee,
-                       self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, self.g0,
-                       start is self.x0, th, sep, self.flag)
-        respond(x, start, v, self.inv, mass, self.gi, self.gw, self.gn, self.gd, self.g0,
-                self.nlive, th, mu, dt, sep, self.flag, self.active, control.obstacles,
-                control.sdf_meta, control.sdf_data, control.contact, self.stats)
+                       self.live, self.nlive, self.gi, self.gw, self.gn, self.gd, self.go,
+                       self.g0, start is self.x0, th, sep, self.flag)
+        respond(x, start, v, self.inv, mass, self.gi, self.gw, self.gn, self.gd, self.go,
+                self.g0, self.nlive, th, mu, dt, sep, SLACK * th, self.flag, self.active,
+                control.obstacles, control.sdf_meta, control.sdf_data, control.contact,
+                self.stats)
 
     def _staged(self, x, v, control, mass, th, dt, stages) -> None:
         """The response to a step whose relative motion exceeds :data:`STAGE` th, in

@@ -40,6 +40,7 @@ from .mesh import ClothMesh
 from .model import Model
 from .handles import HandleSet
 from .obstacles import ObstacleSet
+from .features import FeatureContact
 from .self_contact import DEFAULT_FRICTION, SelfCollision
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
@@ -133,6 +134,7 @@ class ClothSimulator:
         self._obstacles = ObstacleSet()
         self._handles = HandleSet()
         self._self: Optional[SelfCollision] = None     # built when first switched on
+        self._features = FeatureContact(mesh)           # boxes' corners and edges
         self._self_on = False
         self._self_friction = DEFAULT_FRICTION
         self._user_pins = np.zeros(n, dtype=bool)
@@ -413,7 +415,9 @@ class ClothSimulator:
         if self._self_on:
             self._self.begin(self.state.x, self.state.v)
             cap = 1                        # the response follows every step
-        if cap == 0 and not len(self._handles):
+        self._features.start()
+        boxes = self._features.present(self.control)   # their calls: _step_in_calls
+        if cap == 0 and not len(self._handles) and not boxes:
             done = self.solver.step(n, self.state, self.control, self.coefficients,
                                     self._dt, self._vmax ** 2)
         else:
@@ -440,15 +444,38 @@ class ClothSimulator:
         call. Returns the steps done (fewer: a divergence; obstacles and handles then go
         back to where the call began)."""
         poses = self._obstacles.poses()
+        boxes = self._features.present(self.control)
+        start = self.state.copy() if boxes else None
+        overran = False
         done = 0
         while done < n:
             k = n - done if cap == 0 else min(cap, n - done)
+            near = False
+            if boxes:
+                # a box's corners and edges answer every step once the cloth can reach
+                # them; until then calls that cannot reach them (:mod:`.features`), each
+                # checked afterwards and stepped again one by one if it could have
+                free = 0 if overran else self._features.free_steps(
+                    self.state.x, self.state.v, self.control, self._dt)
+                near = free < 2
+                k = 1 if near else min(k, free)
+                if near:
+                    self._features.begin(self.state.x, self.state.v)
+                else:
+                    start.assign(self.state)
+                overran = False
             t = self._time + done * self._dt
             if len(self._handles):
                 k = self._handles.plan(t, self._dt, k)
             self._handles.prescribe(self.state.x, t, self._dt, k, self.control.pin_velocity)
             got = self.solver.step(k, self.state, self.control, self.coefficients,
                                    self._dt, self._vmax ** 2)
+            if (got == k and boxes and not near
+                    and self._features.overran(start.x, self.state.x, self.control,
+                                               self._dt, k)):
+                self.state.assign(start)           # again, one step per call
+                overran = True
+                continue
             if got == k and self._self_on:
                 removed = self._self.after_step(self.state, self.control, self.coefficients,
                                                 self._dt)
@@ -456,6 +483,15 @@ class ClothSimulator:
                     got = 0                # a non-finite response: the step diverged
                 else:
                     self.state.acc[1] += removed
+            if got == k and near:
+                removed = self._features.after_step(self.state, self.control,
+                                                    self.coefficients, self._dt)
+                if not math.isfinite(removed):
+                    got = 0
+                else:
+                    self.state.acc[1] += removed
+            elif boxes:
+                self._features.steps += got        # steps without a feature's force
             done += got
             if got < k:
                 break
@@ -576,8 +612,11 @@ class ClothSimulator:
     def contact_forces(self) -> Dict[int, tuple]:
         """{id: (force (3) [N], torque (3) [N m] about the obstacle's position)}: what the
         cloth exerted on each obstacle over the last step (at rest on the ground: its
-        weight)."""
-        return self._obstacles.forces(self.state.x, self.control.contact)
+        weight). A box's corners and edges (:mod:`.features`) add the mean of what they
+        took over the steps of the last :meth:`step` call: their projection acts in the
+        steps where the cloth has sunk beyond its slack, not in every one."""
+        return self._obstacles.forces(self.state.x, self.control.contact,
+                                      self._features.forces)
 
     def contact_state(self) -> Dict[str, float]:
         """Contact counts and depth of the last step: ``contacts`` (vertices in contact),

@@ -1,0 +1,593 @@
+"""Sharp obstacle features: a box's corners and edges against the cloth's triangles and
+edges.
+
+Why
+---
+Vertex contact (:mod:`.contact`) keeps every *vertex* of the cloth off every obstacle.
+On a smooth obstacle whose radius of curvature is well above the cloth's edge length,
+that keeps the triangles off it too. A box is not smooth. With cloth edges longer than
+the box (a 25 cm triangle on a 12 cm box) the box passes through a triangle between its
+vertices and the cloth falls around it; and a table edge under a hanging cloth cuts into
+every triangle that crosses it. What is missing are the pairs of a mesh against a mesh,
+those of self-collision (:mod:`.self_contact`), with one side rigid and moved by the
+user:
+
+* corner-triangle: box corner ``p`` and cloth triangle (a, b, c), closest point
+  ``q = u x_a + v x_b + w x_c`` (Ericson 5.1.5);
+* edge-edge: box edge (p0, p1) and cloth edge (a0, a1), closest points
+  ``p = (1 - t) p0 + t p1`` and ``q = (1 - s) x_a0 + s x_a1`` (Ericson 5.1.9).
+
+A box's faces against the cloth's vertices are vertex contact; the three kinds together
+are every closest-feature pair of two triangle meshes.
+
+Constraint and response
+-----------------------
+Each pair is one constraint on the cloth's vertices k with weights ``w_k`` (u, v, w or
+1 - s, s), unit normal ``n = (q - p) / |q - p|`` from the obstacle to the cloth and
+distance ``d = |q - p|``, both where the step began, and the obstacle point's
+displacement over the step ``o = dt (v_lin + omega x (p - c))`` (the pose of its row is
+the pose at the step's start, as for vertex contact)::
+
+    g = d + n . (sum_k w_k (x_k - x0_k) - o)
+
+This is self-collision's gap with side B rigid, so the response is self-collision's
+(:func:`.self_contact.respond`). Every pair must end the step at ``g >= th``; a pair that
+began inside the layer moves back out at most at :data:`.self_contact.SEP_SPEED`. The
+correction is inelastic, a Gauss-Seidel projection; the obstacle has zero inverse mass,
+so the cloth takes all of it. Coulomb friction acts on the slip relative to the obstacle,
+with mu the box's kinetic coefficient. A pair that acted is projected once more from the
+exact geometry at the step's end. A step whose motion exceeds ``STAGE th`` (the implicit
+solver's) is answered in stages, as in self-collision. A pair that ends every step at
+``g >= th`` along its own normal cannot cross within a step whose relative motion is
+below th. A box placed through the cloth is not pulled back out: that pair's normal
+already points the wrong way.
+
+The cloth's momentum change over the response is the force on the box. It is reported
+with vertex contact's, in :meth:`.simulator.ClothSimulator.contact_forces`. The energy
+the response removes (:func:`.self_contact._ledger`) counts as dissipation.
+
+Candidates: every step, for each box, the cloth's vertices are taken into the box's
+frame. A triangle or edge is tested against the box's 8 corners or 12 edges only if its
+bounding box, grown by ``th + m``, meets the box's and reaches a face plane ``+-h_a`` on
+at least two axes. Here m is the step's largest motion of a vertex plus the box surface's
+travel. A point within that distance of an edge is that close to two face planes, so a
+cloth lying inside a face (a table top) is not tested at all. A pair is kept if its
+distance at the start is below ``th + m``. The cost is a few comparisons per element,
+per box and step, and only with a box present.
+
+This module imports no ROS package.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .compiled import kernel
+from .contact import (MU_K, PARAM, POS, ROT, SHAPE, SHAPES, SPEED, _point_velocity,
+                      distance)
+from .self_contact import (SEP_SPEED, STAGE, _all_onto_obstacles, _deficit, _inverse_mass,
+                           _ledger, respond, segment_segment)
+from .surface_query import point_triangle_sq
+from .terms.jet import cross
+
+__all__ = ['FeatureContact', 'box_corners', 'BOX_EDGES', 'warm']
+
+BOX = SHAPES['box']
+
+#: a pair short of its target by less than this fraction of th counts as satisfied. Ten
+#: times below self-collision's: a cloth resting on an edge sinks by g dt^2 per step
+#: (5e-4 th at the explicit step of config/table.yaml) and the edge takes its share of
+#: the weight in the steps where that adds up to the slack, so the force over one step
+#: flickers; :attr:`FeatureContact.forces` is therefore the mean over a call's steps
+SLACK = 1e-3
+#: [m/s] the least speed a cloth is assumed to reach when the steps it may take without
+#: the response are counted (:meth:`FeatureContact.free_steps`)
+FREE_SPEED = 1.0
+#: the candidate list's skin: at least this many thicknesses (and 2.5 times the motion
+#: of the step that builds it); rebuilt when a vertex has moved half of it, or a box
+SKIN = 2.0
+
+#: the 12 edges of a box as pairs of corner indices; corner c has the local coordinates
+#: (+-h_0, +-h_1, +-h_2) with the signs of bits 0, 1, 2 of c (set: +)
+BOX_EDGES = np.array([(c, c | (1 << b)) for b in range(3) for c in range(8)
+                      if not c & (1 << b)], dtype=np.int64)
+
+
+@kernel()
+def box_corners(ob, k, out):
+    """The world positions (8, 3) of box row k's corners into ``out``."""
+    for c in range(8):
+        l0 = ob[k, PARAM] if c & 1 else -ob[k, PARAM]
+        l1 = ob[k, PARAM + 1] if c & 2 else -ob[k, PARAM + 1]
+        l2 = ob[k, PARAM + 2] if c & 4 else -ob[k, PARAM + 2]
+        for r in range(3):
+            out[c, r] = (ob[k, POS + r] + ob[k, ROT + 3 * r] * l0
+                         + ob[k, ROT + 3 * r + 1] * l1 + ob[k, ROT + 3 * r + 2] * l2)
+
+
+@kernel(inline='always')
+def _near_features(loc, ob, k, m, i0, i1, i2):
+    """Whether the element with vertices i0, i1, i2 (box-frame coordinates ``loc``; an
+    edge repeats one) may come within ``m`` of box k's corners or edges: its bounding box
+    grown by m meets the box's, and on at least two axes it reaches a face plane +-h_a
+    (a point within m of an edge is within m of two face planes)."""
+    planes = 0
+    for a in range(3):
+        h = ob[k, PARAM + a]
+        lo = min(loc[i0, a], min(loc[i1, a], loc[i2, a])) - m
+        hi = max(loc[i0, a], max(loc[i1, a], loc[i2, a])) + m
+        if lo > h or hi < -h:
+            return False
+        if (lo <= h <= hi) or (lo <= -h <= hi):
+            planes += 1
+    return planes >= 2
+
+
+@kernel()
+def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, out):
+    """The pairs that may come within ``th`` of a box in this step (module docstring),
+    rows (box row k, feature f, cloth element e) of ``cand``: f < 8 corner f against
+    face e, f >= 8 box edge f - 8 against cloth edge e; boxes in row order, so each
+    box's pairs are contiguous. Returns how many (more than ``len(cand)``: only counted,
+    call again with room). ``loc`` (n, 3): room for the vertices in a box's frame;
+    ``out[0]``: the step's largest motion of a vertex [m]."""
+    n = x0.shape[0]
+    move = 0.0
+    for i in range(n):
+        d0 = x[i, 0] - x0[i, 0]
+        d1 = x[i, 1] - x0[i, 1]
+        d2 = x[i, 2] - x0[i, 2]
+        move = max(move, d0 * d0 + d1 * d1 + d2 * d2)
+    move = math.sqrt(move)
+    out[0] = move
+    cap = cand.shape[0]
+    nc = 0
+    for k in range(ob.shape[0]):
+        if ob[k, SHAPE] != BOX:
+            continue
+        margin = th + move + dt * ob[k, SPEED]
+        lim2 = margin * margin
+        for i in range(n):
+            d0 = x0[i, 0] - ob[k, POS]
+            d1 = x0[i, 1] - ob[k, POS + 1]
+            d2 = x0[i, 2] - ob[k, POS + 2]
+            for a in range(3):
+                loc[i, a] = (ob[k, ROT + a] * d0 + ob[k, ROT + 3 + a] * d1
+                             + ob[k, ROT + 6 + a] * d2)
+        box_corners(ob, k, corners)
+        for t in range(faces.shape[0]):
+            a = faces[t, 0]
+            b = faces[t, 1]
+            c = faces[t, 2]
+            if not _near_features(loc, ob, k, margin, a, b, c):
+                continue
+            for f in range(8):
+                dd, u, v, w = point_triangle_sq(corners[f, 0], corners[f, 1], corners[f, 2],
+                                                x0[a], x0[b], x0[c])
+                if dd < lim2:
+                    if nc < cap:
+                        cand[nc, 0] = k
+                        cand[nc, 1] = f
+                        cand[nc, 2] = t
+                    nc += 1
+        for e in range(edges.shape[0]):
+            a = edges[e, 0]
+            b = edges[e, 1]
+            if not _near_features(loc, ob, k, margin, a, b, b):
+                continue
+            for f in range(12):
+                dd, s, t = segment_segment(x0[a], x0[b], corners[box_edges[f, 0]],
+                                           corners[box_edges[f, 1]])
+                if dd < lim2:
+                    if nc < cap:
+                        cand[nc, 0] = k
+                        cand[nc, 1] = 8 + f
+                        cand[nc, 2] = e
+                    nc += 1
+    return nc
+
+
+@kernel()
+def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corners, gi,
+             gw, gn, gd, go, g0, first, th, sep, slack, flag):
+    """The constraint of each pair ``cand[:nc]`` (module docstring) linearised at the
+    cloth's positions ``xs``, with the box moved on by ``shift`` of its step's
+    displacement and moving ``part`` of it in what is left to answer (the whole step: 0
+    and 1; its end: 1 and 0; a stage j of m: j / m and 1 / m): vertices gi (P,4), weights
+    gw (P,4), normal gn (P,3) from the box to the cloth, distance gd (P,), the box's
+    displacement go (P,3). A pair at zero distance takes the triangle's normal (or the
+    edges' cross product) turned away from the box's centre. ``first``: g0 takes gd
+    (the distance that sets each pair's target). flag[p]: 1 if short at x by more
+    than ``slack`` [m]."""
+    last = -1
+    for p in range(nc):
+        k = cand[p, 0]
+        f = cand[p, 1]
+        e = cand[p, 2]
+        if k != last:
+            box_corners(ob, k, corners)
+            last = k
+        if f < 8:
+            a = faces[e, 0]
+            b = faces[e, 1]
+            c = faces[e, 2]
+            dd, u, v, w = point_triangle_sq(corners[f, 0], corners[f, 1], corners[f, 2],
+                                            xs[a], xs[b], xs[c])
+            p0 = corners[f, 0]
+            p1 = corners[f, 1]
+            p2 = corners[f, 2]
+            gi[p, 0] = a
+            gi[p, 1] = b
+            gi[p, 2] = c
+            gi[p, 3] = a
+            gw[p, 0] = u
+            gw[p, 1] = v
+            gw[p, 2] = w
+            gw[p, 3] = 0.0
+            f0, f1, f2 = cross(xs[b, 0] - xs[a, 0], xs[b, 1] - xs[a, 1], xs[b, 2] - xs[a, 2],
+                               xs[c, 0] - xs[a, 0], xs[c, 1] - xs[a, 1], xs[c, 2] - xs[a, 2])
+        else:
+            a = edges[e, 0]
+            b = edges[e, 1]
+            c0 = box_edges[f - 8, 0]
+            c1 = box_edges[f - 8, 1]
+            dd, s, t = segment_segment(xs[a], xs[b], corners[c0], corners[c1])
+            p0 = corners[c0, 0] + t * (corners[c1, 0] - corners[c0, 0])
+            p1 = corners[c0, 1] + t * (corners[c1, 1] - corners[c0, 1])
+            p2 = corners[c0, 2] + t * (corners[c1, 2] - corners[c0, 2])
+            gi[p, 0] = a
+            gi[p, 1] = b
+            gi[p, 2] = a
+            gi[p, 3] = b
+            gw[p, 0] = 1.0 - s
+            gw[p, 1] = s
+            gw[p, 2] = 0.0
+            gw[p, 3] = 0.0
+            f0, f1, f2 = cross(xs[b, 0] - xs[a, 0], xs[b, 1] - xs[a, 1], xs[b, 2] - xs[a, 2],
+                               corners[c1, 0] - corners[c0, 0], corners[c1, 1] - corners[c0, 1],
+                               corners[c1, 2] - corners[c0, 2])
+        o0, o1, o2 = _point_velocity(ob, k, p0, p1, p2)
+        p0 += shift * dt * o0
+        p1 += shift * dt * o1
+        p2 += shift * dt * o2
+        go[p, 0] = part * dt * o0
+        go[p, 1] = part * dt * o1
+        go[p, 2] = part * dt * o2
+        # the cloth's point q less the box's point (moved on by shift, with dd at the
+        # unmoved box: recomputed here)
+        r0 = -p0
+        r1 = -p1
+        r2 = -p2
+        for j in range(4):
+            r0 += gw[p, j] * xs[gi[p, j], 0]
+            r1 += gw[p, j] * xs[gi[p, j], 1]
+            r2 += gw[p, j] * xs[gi[p, j], 2]
+        d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if d > 1e-12:
+            gn[p, 0] = r0 / d
+            gn[p, 1] = r1 / d
+            gn[p, 2] = r2 / d
+        else:
+            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+            side = ((p0 - ob[k, POS]) * f0 + (p1 - ob[k, POS + 1]) * f1
+                    + (p2 - ob[k, POS + 2]) * f2)
+            if fn > 0.0:
+                sg = 1.0 if side >= 0.0 else -1.0
+                gn[p, 0] = sg * f0 / fn
+                gn[p, 1] = sg * f1 / fn
+                gn[p, 2] = sg * f2 / fn
+            else:
+                for j in range(4):
+                    gw[p, j] = 0.0
+                gn[p, 0] = 0.0
+                gn[p, 1] = 0.0
+                gn[p, 2] = 1.0
+        gd[p] = d
+        if first:
+            g0[p] = d
+        flag[p] = 1 if _deficit(p, x, xs, gi, gw, gn, gd, go, g0, th, sep) > slack else 0
+
+
+@kernel()
+def _impulse(x, v, v_before, c_before, contact, mass, dt, ob, k, out):
+    """The force and torque (about its position) that the cloth exerted on box row k
+    through the response that took the velocities from ``v_before`` to ``v``: minus the
+    cloth's momentum change over dt, less what vertex contact recorded meanwhile in
+    ``contact`` (the response's pushes back onto obstacle layers; ``c_before`` before
+    it); added to ``out`` (6,)."""
+    for i in range(x.shape[0]):
+        if v[i, 0] == v_before[i, 0] and v[i, 1] == v_before[i, 1] and v[i, 2] == v_before[i, 2]:
+            continue
+        f0 = (contact[i, 0] - c_before[i, 0]) - mass[i] * (v[i, 0] - v_before[i, 0]) / dt
+        f1 = (contact[i, 1] - c_before[i, 1]) - mass[i] * (v[i, 1] - v_before[i, 1]) / dt
+        f2 = (contact[i, 2] - c_before[i, 2]) - mass[i] * (v[i, 2] - v_before[i, 2]) / dt
+        out[0] += f0
+        out[1] += f1
+        out[2] += f2
+        t0, t1, t2 = cross(x[i, 0] - ob[k, POS], x[i, 1] - ob[k, POS + 1],
+                           x[i, 2] - ob[k, POS + 2], f0, f1, f2)
+        out[3] += t0
+        out[4] += t1
+        out[5] += t2
+
+
+@kernel()
+def clearance(x, v, edges, ob, meta, data, th):
+    """(how far every box is from the cloth beyond its longest edge plus ``th`` [m],
+    the fastest any box's surface moves [m/s], the fastest vertex [m/s]):
+    :meth:`FeatureContact.free_steps`."""
+    fastest = 0.0
+    for i in range(x.shape[0]):
+        fastest = max(fastest, v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+    longest = 0.0
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d0 = x[a, 0] - x[b, 0]
+        d1 = x[a, 1] - x[b, 1]
+        d2 = x[a, 2] - x[b, 2]
+        longest = max(longest, d0 * d0 + d1 * d1 + d2 * d2)
+    near = np.inf
+    speed = 0.0
+    for k in range(ob.shape[0]):
+        if ob[k, SHAPE] != BOX:
+            continue
+        speed = max(speed, ob[k, SPEED])
+        for i in range(x.shape[0]):
+            d, n0, n1, n2 = distance(ob, meta, data, k, x[i, 0], x[i, 1], x[i, 2])
+            near = min(near, d)
+    return near - math.sqrt(longest) - th, speed, math.sqrt(fastest)
+
+
+@kernel()
+def _largest_motion(x, ref):
+    """max_i |x_i - ref_i| [m]."""
+    out = 0.0
+    for i in range(x.shape[0]):
+        d0 = x[i, 0] - ref[i, 0]
+        d1 = x[i, 1] - ref[i, 1]
+        d2 = x[i, 2] - ref[i, 2]
+        out = max(out, d0 * d0 + d1 * d1 + d2 * d2)
+    return math.sqrt(out)
+
+
+@kernel()
+def respond_boxes(cand, nc, base, x, v, ob, meta, data, contact, faces, edges, box_edges,
+                  dt, shift, part, first, friction, corners, inv, mass, gi, gw, gn, gd, go,
+                  g0, flag, active, vb, cb, th, sep, slack, stats, forces):
+    """One pass of the response (module docstring): the pairs' geometry linearised at
+    ``base`` (:func:`geometry`), then self-collision's projection box by box, each with
+    its own kinetic mu (none if not ``friction``), and each box's force and torque added
+    to ``forces[k]`` (:func:`_impulse`). Returns how many pairs acted."""
+    geometry(cand, nc, base, x, ob, faces, edges, box_edges, dt, shift, part, corners, gi,
+             gw, gn, gd, go, g0, first, th, sep, slack, flag)
+    acted = 0
+    a = 0
+    while a < nc:
+        k = cand[a, 0]
+        b = a
+        while b < nc and cand[b, 0] == k:
+            b += 1
+        mu = ob[k, MU_K] if friction else 0.0
+        vb[:] = v
+        cb[:] = contact[:, :3]
+        respond(x, base, v, inv, mass, gi[a:b], gw[a:b], gn[a:b], gd[a:b], go[a:b],
+                g0[a:b], b - a, th, mu, dt, sep, slack, flag[a:b], active[a:b], ob, meta,
+                data, contact, stats)
+        if stats[0] > 0:
+            acted += int(stats[0])
+            _impulse(x, v, vb, cb, contact, mass, dt, ob, k, forces[k])
+        a = b
+    return acted
+
+
+class FeatureContact:
+    """The corners and edges of the boxes among a simulator's obstacles against its
+    cloth (module docstring).
+
+    ``start()`` before a call's steps, ``begin(x, v)`` before each step,
+    ``after_step(state, control, coeff, dt)`` after it: the response, in place; returns
+    the energy it removed [J]. :attr:`forces` (obstacle rows, 6): the force and torque
+    each box took through its features, the mean over the steps since ``start()``.
+
+    The candidate pairs are a Verlet list: found within ``th + skin`` where a step
+    began, kept while no vertex has moved more than half the skin since and no box has
+    moved or changed (module docstring)."""
+
+    def __init__(self, mesh):
+        n = mesh.n_vertices
+        self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.edges = np.ascontiguousarray(mesh.edges, dtype=np.int64)
+        self.x0 = np.zeros((n, 3))
+        self.v0 = np.zeros((n, 3))
+        self.xs = np.zeros((n, 3))
+        self.vs = np.zeros((n, 3))
+        self.xe = np.zeros((n, 3))
+        self.xt = np.zeros((n, 3))
+        self.vb = np.zeros((n, 3))
+        self.cb = np.zeros((n, 3))
+        self.loc = np.zeros((n, 3))
+        self.corners = np.zeros((8, 3))
+        self.inv = np.zeros(n)
+        self.stats = np.zeros(5)
+        self.move = np.zeros(1)
+        self.scratch = np.zeros(1)
+        self.sums = np.zeros((0, 6))
+        self.steps = 0
+        self.xb = np.zeros((n, 3))
+        self.built = None                  # the obstacle rows of the last build
+        self.skin = 0.0
+        self.builds = 0
+        self.pairs = 0
+        self.acted = 0
+        self.gap = 0.0
+        self._alloc(64)
+
+    def _alloc(self, p):
+        self.cand = np.zeros((p, 3), np.int64)
+        self.gi = np.zeros((p, 4), np.int64)
+        self.gw = np.zeros((p, 4))
+        self.gn = np.zeros((p, 3))
+        self.gd = np.zeros(p)
+        self.go = np.zeros((p, 3))
+        self.g0 = np.zeros(p)
+        self.flag = np.zeros(p, np.int64)
+        self.active = np.zeros(p, np.int64)
+
+    @staticmethod
+    def present(control) -> bool:
+        """Whether any obstacle is a box (else nothing to do)."""
+        ob = control.obstacles
+        return bool(ob.shape[0]) and bool((ob[:, SHAPE] == BOX).any())
+
+    def start(self) -> None:
+        self.sums[:] = 0.0
+        self.steps = 0
+
+    @property
+    def forces(self) -> np.ndarray:
+        """(obstacle rows, 6): force and torque on each box, the mean over the steps
+        since :meth:`start`."""
+        return self.sums / max(1, self.steps)
+
+    def begin(self, x: np.ndarray, v: np.ndarray) -> None:
+        self.x0[:] = x
+        self.v0[:] = v
+
+    def free_steps(self, x: np.ndarray, v: np.ndarray, control, dt: float) -> int:
+        """How many steps the cloth can probably take from (x, v) before any of its
+        triangles could come within the thickness of a box, so that no response is
+        needed after them (fewer than 2: answer each step). A triangle that near has a
+        vertex within its longest edge plus th of the box; the steps are those in which
+        the fastest vertex, at its present speed but at least :data:`FREE_SPEED`, and the
+        box's surface together cover half that gap. :meth:`overran` then checks the call
+        (a cloth can speed up). While the last step had candidate pairs: 0 without
+        looking."""
+        if self.pairs:
+            return 0
+        gap, speed, fastest = clearance(x, v, self.edges, control.obstacles,
+                                        control.sdf_meta, control.sdf_data,
+                                        float(control.contact_params[0]))
+        self.gap = gap
+        if gap <= 0.0:
+            return 0
+        return int(min(0.5 * gap / ((max(fastest, FREE_SPEED) + speed) * dt), 2.0 ** 62))
+
+    def overran(self, x_start: np.ndarray, x: np.ndarray, control, dt: float,
+                steps: int) -> bool:
+        """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
+        vertex, together with a box's surface, further than the gap it was given (then
+        it must be stepped again one step per call, with the response)."""
+        speed = 0.0
+        ob = control.obstacles
+        for k in range(ob.shape[0]):
+            if ob[k, SHAPE] == BOX:
+                speed = max(speed, float(ob[k, SPEED]))
+        return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
+
+    def _candidates(self, x, ob, th, dt) -> None:
+        """The Verlet list (class docstring), built again where this step began if it
+        is stale; then ``self.pairs`` = its length."""
+        move = _largest_motion(x, self.x0)
+        stale = (self.built is None or self.built.shape != ob.shape
+                 or not np.array_equal(self.built[:, :PARAM + 3], ob[:, :PARAM + 3])
+                 or _largest_motion(x, self.xb) > 0.5 * self.skin)
+        self.move[0] = move
+        if not stale:
+            return
+        self.skin = max(SKIN * th, 2.5 * move)
+        while True:
+            nc = candidates(self.x0, self.x0, self.faces, self.edges, ob, th + self.skin, dt,
+                            BOX_EDGES, self.loc, self.corners, self.cand, self.scratch)
+            if nc <= len(self.cand):
+                break
+            self._alloc(2 * nc)
+        self.pairs = nc
+        self.xb[:] = self.x0
+        self.built = ob.copy()
+        self.builds += 1
+
+    def _pass(self, base, x, v, control, mass, th, dt, shift, part, first, friction):
+        """:func:`respond_boxes` at ``base`` (its arguments from this object)."""
+        return respond_boxes(self.cand, self.pairs, base, x, v, control.obstacles,
+                             control.sdf_meta, control.sdf_data, control.contact,
+                             self.faces, self.edges, BOX_EDGES, dt, shift, part, first,
+                             friction, self.corners, self.inv, mass, self.gi, self.gw,
+                             self.gn, self.gd, self.go, self.g0, self.flag, self.active,
+                             self.vb, self.cb, th, SEP_SPEED * dt, SLACK * th, self.stats,
+                             self.sums)
+
+    def after_step(self, state, control, coeff, dt: float) -> float:
+        ob = control.obstacles
+        if self.sums.shape[0] != ob.shape[0]:
+            self.sums = np.zeros((ob.shape[0], 6))
+        self.steps += 1
+        self.acted = 0
+        if not self.present(control):
+            self.pairs = 0
+            return 0.0
+        th = float(control.contact_params[0])
+        x, v = state.x, state.v
+        self._candidates(x, ob, th, dt)
+        nc = self.pairs
+        if nc == 0:
+            return 0.0
+        _inverse_mass(coeff.mass, control.pinned, self.inv)
+        self.xs[:] = x
+        self.vs[:] = v
+        step = float(self.move[0])
+        stages = max(1, int(math.ceil(step / (STAGE * th))))
+        if stages == 1:
+            acted = self._pass(self.x0, x, v, control, coeff.mass, th, dt, 0.0, 1.0, True,
+                               True)
+        else:
+            # the solver's displacement in equal parts, each linearised where the last
+            # one ended (self-collision's stages)
+            self.xt[:] = x
+            x[:] = self.x0
+            acted = 0
+            for j in range(stages):
+                start = self.x0 if j == 0 else self.xe
+                self.xe[:] = x
+                x += (self.xt - self.x0) / stages
+                acted += self._pass(start, x, v, control, coeff.mass, th, dt, j / stages,
+                                    1.0 / stages, j == 0, True)
+            _all_onto_obstacles(x, v, dt, self.inv, coeff.mass, ob, control.sdf_meta,
+                                control.sdf_data, th, control.contact)
+        if acted > 0 or self.g0[:nc].min() < th:
+            # once more from the exact geometry at the step's end, friction applied
+            self.xe[:] = x
+            acted += self._pass(self.xe, x, v, control, coeff.mass, th, dt, 1.0, 0.0,
+                                False, False)
+        self.acted = acted
+        if acted == 0:
+            return 0.0
+        return _ledger(x, self.xs, v, self.vs, self.v0, coeff.mass, dt)
+
+
+def warm() -> None:
+    """Compile this module's kernels (into numba's cache): a triangle falling onto a box
+    corner, in one step and in stages."""
+    from types import SimpleNamespace
+    from .contact import WIDTH
+    from .mesh import ClothMesh
+    from .state import Control, State
+    rest = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+    fc = FeatureContact(ClothMesh(rest, np.array([[0, 1, 2]])))
+    box = np.zeros((1, WIDTH))
+    box[0, SHAPE] = BOX
+    box[0, ROT:ROT + 9] = np.eye(3).reshape(-1)
+    box[0, POS + 2] = -0.2
+    box[0, PARAM:PARAM + 3] = 0.1
+    box[0, MU_K] = 0.5
+    control = Control.empty(3).with_obstacles(box, np.zeros((0, 8)), np.zeros(0))
+    coeff = SimpleNamespace(mass=np.full(3, 0.01))
+    for fall in (0.0005, 0.004):                 # one step; a staged one
+        x = rest.copy()
+        x[:, 2] = -0.097
+        v = np.zeros((3, 3))
+        v[:, 2] = -1.0
+        fc.begin(x, v)
+        x += fall * v
+        fc.after_step(State(x, v, np.zeros(2)), control, coeff, fall)
