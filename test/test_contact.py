@@ -524,3 +524,5 @@ def test_a_coarse_cloth_over_a_table_edge_and_the_weight_it_puts_on_it():
     assert total[2] == pytest.approx(-weight, rel=0.01)
     assert abs(total[0]) < 0.01 * weight
     assert f[table][0][2] < -0.5 * weight                # the table carries most of it
+    state = sim.contact_state()
+    assert state['box_feature_pairs'] > 0 and state['box_feature_active'] >= 0

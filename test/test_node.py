@@ -675,6 +675,10 @@ def test_table_config_reports_the_weight_on_the_table():
         weight = node.sim.coefficients.mass.sum() * 9.81
         assert got[-1].wrench.force.z == pytest.approx(-weight, rel=0.01)
         assert node.sim.positions[:, 2].max() < -0.29         # on the table or below it
+        # the table's edges hold the hanging cloth: their pairs are in /diagnostics
+        diag = {kv.key: kv.value for st in node.diagnostics().status for kv in st.values}
+        assert int(diag['box_feature_pairs']) > 0 and 'box_feature_active' in diag
+        assert float(diag['deepest_penetration_m']) >= 0.0
     finally:
         ex.shutdown()
         node.destroy_node()

@@ -621,12 +621,16 @@ class ClothSimulator:
     def contact_state(self) -> Dict[str, float]:
         """Contact counts and depth of the last step: ``contacts`` (vertices in contact),
         ``deepest`` [m] (how far the deepest vertex was inside the contact layer at the
-        start of its step, >= 0)."""
+        start of its step, >= 0), ``box_feature_pairs`` (candidate pairs of a box's
+        corners and edges with the cloth's triangles and edges, :mod:`.features`) and
+        ``box_feature_active`` (those the last step's response moved)."""
         c = self.control.contact
         active = c[:, 3] >= 0
         gap = c[:, 4]
         deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
-        return {'contacts': int(active.sum()), 'deepest': deepest}
+        return {'contacts': int(active.sum()), 'deepest': deepest,
+                'box_feature_pairs': int(self._features.pairs),
+                'box_feature_active': int(self._features.acted)}
 
     @property
     def contact_thickness(self) -> float:
