@@ -67,7 +67,7 @@ from .compiled import kernel
 from .contact import (MU_K, PARAM, POS, ROT, SHAPE, SHAPES, SPEED, _point_velocity,
                       distance)
 from .self_contact import (SEP_SPEED, STAGE, _all_onto_obstacles, _deficit, _inverse_mass,
-                           _ledger, respond, segment_segment)
+                           _ledger, respond, segment_segment, set_normal)
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
@@ -263,29 +263,10 @@ def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corn
             r0 += gw[p, j] * xs[gi[p, j], 0]
             r1 += gw[p, j] * xs[gi[p, j], 1]
             r2 += gw[p, j] * xs[gi[p, j], 2]
-        d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        if d > 1e-12:
-            gn[p, 0] = r0 / d
-            gn[p, 1] = r1 / d
-            gn[p, 2] = r2 / d
-        else:
-            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-            side = ((p0 - ob[k, POS]) * f0 + (p1 - ob[k, POS + 1]) * f1
-                    + (p2 - ob[k, POS + 2]) * f2)
-            if fn > 0.0:
-                sg = 1.0 if side >= 0.0 else -1.0
-                gn[p, 0] = sg * f0 / fn
-                gn[p, 1] = sg * f1 / fn
-                gn[p, 2] = sg * f2 / fn
-            else:
-                for j in range(4):
-                    gw[p, j] = 0.0
-                gn[p, 0] = 0.0
-                gn[p, 1] = 0.0
-                gn[p, 2] = 1.0
-        gd[p] = d
-        if first:
-            g0[p] = d
+        # the fallback direction turned away from the box's centre
+        sg = 1.0 if ((p0 - ob[k, POS]) * f0 + (p1 - ob[k, POS + 1]) * f1
+                     + (p2 - ob[k, POS + 2]) * f2) >= 0.0 else -1.0
+        set_normal(p, r0, r1, r2, sg * f0, sg * f1, sg * f2, gw, gn, gd, g0, first)
         flag[p] = 1 if _deficit(p, x, xs, gi, gw, gn, gd, go, g0, th, sep) > slack else 0
 
 

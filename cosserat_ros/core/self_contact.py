@@ -414,29 +414,36 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
             r0 += gw[p, k] * x0[j, 0]
             r1 += gw[p, k] * x0[j, 1]
             r2 += gw[p, k] * x0[j, 2]
-        d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        if d > 1e-12:
-            gn[p, 0] = r0 / d
-            gn[p, 1] = r1 / d
-            gn[p, 2] = r2 / d
-        else:
-            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-            if fn > 0.0:
-                gn[p, 0] = f0 / fn
-                gn[p, 1] = f1 / fn
-                gn[p, 2] = f2 / fn
-            else:
-                gw[p, 0] = 0.0
-                gw[p, 1] = 0.0
-                gw[p, 2] = 0.0
-                gw[p, 3] = 0.0
-                gn[p, 0] = 0.0
-                gn[p, 1] = 0.0
-                gn[p, 2] = 1.0
-        gd[p] = d
-        if first:
-            g0[p] = d
+        set_normal(p, r0, r1, r2, f0, f1, f2, gw, gn, gd, g0, first)
         flag[p] = 1 if _deficit(p, x, x0, gi, gw, gn, gd, go, g0, th, sep) > SLACK * th else 0
+
+
+@kernel(inline='always')
+def set_normal(p, r0, r1, r2, f0, f1, f2, gw, gn, gd, g0, first):
+    """Pair p's normal gn[p] = r / |r| (r: from side B's point to side A's) and distance
+    gd[p] = |r|; at zero distance the fallback direction f normalised, and if that too is
+    zero the pair gets weight 0 (skipped). ``first``: g0[p] (the distance that sets the
+    pair's target) takes gd[p] too."""
+    d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if d > 1e-12:
+        gn[p, 0] = r0 / d
+        gn[p, 1] = r1 / d
+        gn[p, 2] = r2 / d
+    else:
+        fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        if fn > 0.0:
+            gn[p, 0] = f0 / fn
+            gn[p, 1] = f1 / fn
+            gn[p, 2] = f2 / fn
+        else:
+            for k in range(gw.shape[1]):
+                gw[p, k] = 0.0
+            gn[p, 0] = 0.0
+            gn[p, 1] = 0.0
+            gn[p, 2] = 1.0
+    gd[p] = d
+    if first:
+        g0[p] = d
 
 
 @kernel()
