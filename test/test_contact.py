@@ -526,3 +526,46 @@ def test_a_coarse_cloth_over_a_table_edge_and_the_weight_it_puts_on_it():
     assert f[table][0][2] < -0.5 * weight                # the table carries most of it
     state = sim.contact_state()
     assert state['box_feature_pairs'] > 0 and state['box_feature_active'] >= 0
+
+
+def test_a_cloth_falling_towards_a_box_steps_freely_until_it_can_reach_it():
+    """A 20 x 20 cloth falling from 0.25 m above a 10 cm box: until its triangles can
+    reach the box it steps in calls of many steps (no response after each), then one
+    step per call; no triangle meets the box at any frame, and it ends on the box."""
+    sim = _sim(20, 1.0, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                          damping=0.3))
+    center, half = np.array([0.0, 0.0, -0.3]), np.array([0.05, 0.05, 0.05])
+    sim.add_obstacle('box', center=center, half_extents=half)
+    calls = []
+    solver_step = sim.solver.step
+
+    def counted(k, *args):
+        calls.append(k)
+        return solver_step(k, *args)
+    sim.solver.step = counted
+    grown = half + 0.5 * sim.contact_thickness
+    frame = int(round(FRAME / sim.dt))
+    for _ in range(int(0.5 / FRAME)):
+        sim.step(frame)
+        assert _triangles_meeting_box(sim.positions, sim.mesh.faces, center, np.eye(3),
+                                      grown) == 0, sim.time
+    first = calls[:len(calls) // 10]
+    assert max(first) > 10                   # the fall began in calls of many steps
+    assert calls[-1] == 1                     # on the box: one step per call
+    assert sim.contact_state()['box_feature_pairs'] > 0
+    top = sim.positions[np.linalg.norm(sim.positions[:, :2], axis=1) < 0.03, 2]
+    assert top.min() > center[2] + half[2]  # the middle of the cloth lies on the box
+
+
+def test_a_free_call_that_went_further_than_its_gap_is_refused():
+    from cosserat_ros.core.features import FeatureContact
+    from cosserat_ros.core.state import Control
+    fc = FeatureContact(grid_mesh(2, 2))
+    control = Control.empty(9)
+    fc.gap = 0.01
+    x0 = np.zeros((9, 3))
+    x = x0.copy()
+    x[4, 2] = -0.009
+    assert not fc.overran(x0, x, control, 1e-3, 10)
+    x[4, 2] = -0.011
+    assert fc.overran(x0, x, control, 1e-3, 10)
