@@ -60,6 +60,7 @@ This module imports no ROS package.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -333,34 +334,141 @@ def _largest_motion(x, ref):
     return math.sqrt(out)
 
 
+class Pairs(NamedTuple):
+    """Candidate pairs (rows p) and each one's constraint (module docstring): ``cand``
+    (box row, feature, cloth element), then what :func:`geometry` writes: vertices
+    ``gi``, weights ``gw``, normal ``gn``, distance ``gd``, the box's displacement
+    ``go``, the distance that sets the target ``g0``, short ``flag``; ``active``: the
+    projection's list of short pairs."""
+    cand: np.ndarray
+    gi: np.ndarray
+    gw: np.ndarray
+    gn: np.ndarray
+    gd: np.ndarray
+    go: np.ndarray
+    g0: np.ndarray
+    flag: np.ndarray
+    active: np.ndarray
+
+    @staticmethod
+    def zeros(p: int) -> 'Pairs':
+        return Pairs(np.zeros((p, 3), np.int64), np.zeros((p, 4), np.int64),
+                     np.zeros((p, 4)), np.zeros((p, 3)), np.zeros(p), np.zeros((p, 3)),
+                     np.zeros(p), np.zeros(p, np.int64), np.zeros(p, np.int64))
+
+
+class Scratch(NamedTuple):
+    """Per-vertex (n, 3) arrays of a step's response: where the step began ``x0``, ``v0``;
+    where the response began ``xs``, ``vs``; the base of its last pass ``xe``; the
+    velocities and contact forces before a box's projection ``vb``, ``cb``; inverse masses
+    ``inv`` (n,); a box's ``corners`` (8, 3); the projection's ``stats`` (5,)."""
+    x0: np.ndarray
+    v0: np.ndarray
+    xs: np.ndarray
+    vs: np.ndarray
+    xe: np.ndarray
+    vb: np.ndarray
+    cb: np.ndarray
+    inv: np.ndarray
+    corners: np.ndarray
+    stats: np.ndarray
+
+    @staticmethod
+    def zeros(n: int) -> 'Scratch':
+        z = [np.zeros((n, 3)) for _ in range(7)]
+        return Scratch(*z, np.zeros(n), np.zeros((8, 3)), np.zeros(5))
+
+
 @kernel()
-def respond_boxes(cand, nc, base, x, v, ob, meta, data, contact, faces, edges, box_edges,
-                  dt, shift, part, first, friction, corners, inv, mass, gi, gw, gn, gd, go,
-                  g0, flag, active, vb, cb, th, sep, slack, stats, forces):
-    """One pass of the response (module docstring): the pairs' geometry linearised at
-    ``base`` (:func:`geometry`), then self-collision's projection box by box, each with
-    its own kinetic mu (none if not ``friction``), and each box's force and torque added
-    to ``forces[k]`` (:func:`_impulse`). Returns how many pairs acted."""
-    geometry(cand, nc, base, x, ob, faces, edges, box_edges, dt, shift, part, corners, gi,
-             gw, gn, gd, go, g0, first, th, sep, slack, flag)
+def respond_boxes(pairs, nc, base, x, v, ob, meta, data, contact, faces, edges, box_edges,
+                  dt, shift, part, first, friction, s, mass, th, sep, slack, forces):
+    """One pass of the response (module docstring): the constraints of ``pairs[:nc]``
+    linearised at ``base`` (:func:`geometry`), then self-collision's projection box by
+    box, each with its own kinetic mu (none if not ``friction``), and each box's force
+    and torque added to ``forces[k]`` (:func:`_impulse`). Returns how many pairs
+    acted."""
+    P = pairs
+    geometry(P.cand, nc, base, x, ob, faces, edges, box_edges, dt, shift, part, s.corners,
+             P.gi, P.gw, P.gn, P.gd, P.go, P.g0, first, th, sep, slack, P.flag)
     acted = 0
     a = 0
     while a < nc:
-        k = cand[a, 0]
+        k = P.cand[a, 0]
         b = a
-        while b < nc and cand[b, 0] == k:
+        while b < nc and P.cand[b, 0] == k:
             b += 1
         mu = ob[k, MU_K] if friction else 0.0
-        vb[:] = v
-        cb[:] = contact[:, :3]
-        respond(x, base, v, inv, mass, gi[a:b], gw[a:b], gn[a:b], gd[a:b], go[a:b],
-                g0[a:b], b - a, th, mu, dt, sep, slack, flag[a:b], active[a:b], ob, meta,
-                data, contact, stats)
-        if stats[0] > 0:
-            acted += int(stats[0])
-            _impulse(x, v, vb, cb, contact, mass, dt, ob, k, forces[k])
+        s.vb[:] = v
+        s.cb[:] = contact[:, :3]
+        respond(x, base, v, s.inv, mass, P.gi[a:b], P.gw[a:b], P.gn[a:b], P.gd[a:b],
+                P.go[a:b], P.g0[a:b], b - a, th, mu, dt, sep, slack, P.flag[a:b],
+                P.active[a:b], ob, meta, data, contact, s.stats)
+        if s.stats[0] > 0:
+            acted += int(s.stats[0])
+            _impulse(x, v, s.vb, s.cb, contact, mass, dt, ob, k, forces[k])
         a = b
     return acted
+
+
+@kernel()
+def _within(pairs, nc, ob, dt, reach, late):
+    """The pairs of ``pairs[:nc]`` (their distance ``gd`` where the first pass
+    linearised them, at the step's start with the box unmoved) that may still be short
+    of their target once the cloth has moved up to ``reach`` [m] and each box its
+    step's travel ``dt SPEED``: into ``late`` (cand and g0), in order; returns how many.
+    A point's distance to a triangle or a segment changes by no more than its vertices
+    move, and no target exceeds th, so a pair left out is not short."""
+    m = 0
+    for p in range(nc):
+        k = pairs.cand[p, 0]
+        if pairs.gd[p] < reach + dt * ob[k, SPEED]:
+            for j in range(3):
+                late.cand[m, j] = pairs.cand[p, j]
+            late.g0[m] = pairs.g0[p]
+            m += 1
+    return m
+
+
+@kernel()
+def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges,
+                 box_edges, mass, pinned, dt, th, sep, slack, forces, out):
+    """The response to one step from ``s.x0, s.v0`` to (x, v), in place and in one
+    stage: a pass from the step's start with friction, and if a pair acted or began
+    inside the layer, a pass from the geometry at its end over the pairs that can still
+    be short (:func:`_within`). Returns how many pairs acted; ``out[0]``: the energy the
+    response removed [J] (:func:`_ledger`)."""
+    _inverse_mass(mass, pinned, s.inv)
+    s.xs[:] = x
+    s.vs[:] = v
+    acted = respond_boxes(pairs, nc, s.x0, x, v, ob, meta, data, contact, faces, edges,
+                          box_edges, dt, 0.0, 1.0, True, True, s, mass, th, sep, slack,
+                          forces)
+    inside = False
+    for p in range(nc):
+        if pairs.g0[p] < th:
+            inside = True
+            break
+    if acted > 0 or inside:
+        s.xe[:] = x
+        m = _within(pairs, nc, ob, dt, th + slack + _largest_motion(x, s.x0), late)
+        acted += respond_boxes(late, m, s.xe, x, v, ob, meta, data, contact, faces, edges,
+                               box_edges, dt, 1.0, 0.0, False, False, s, mass, th, sep,
+                               slack, forces)
+    out[0] = _ledger(x, s.xs, v, s.vs, s.v0, mass, dt) if acted > 0 else 0.0
+    return acted
+
+
+@kernel()
+def fresh(x, x0, xb, skin, ob, built, move):
+    """Whether the candidate list built at ``xb`` for the obstacle rows ``built`` (same
+    shape as ``ob``) still holds: no vertex has moved half the skin since and no box
+    has moved or changed. ``move[0]``: the step's largest motion of a vertex (from x0)."""
+    move[0] = _largest_motion(x, x0)
+    for k in range(ob.shape[0]):
+        for j in range(PARAM + 3):
+            if ob[k, j] != built[k, j]:
+                return False
+    return _largest_motion(x, xb) <= 0.5 * skin
 
 
 class FeatureContact:
@@ -368,9 +476,10 @@ class FeatureContact:
     cloth (module docstring).
 
     ``start()`` before a call's steps, ``begin(x, v)`` before each step,
-    ``after_step(state, control, coeff, dt)`` after it: the response, in place; returns
-    the energy it removed [J]. :attr:`forces` (obstacle rows, 6): the force and torque
-    each box took through its features, the mean over the steps since ``start()``.
+    ``after_step(state, control, coeff, dt)`` after it, while a box is present
+    (:meth:`present`): the response, in place; returns the energy it removed [J].
+    :attr:`forces` (obstacle rows, 6): the force and torque each box took through its
+    features, the mean over the steps since ``start()``.
 
     The candidate pairs are a Verlet list: found within ``th + skin`` where a step
     began, kept while no vertex has moved more than half the skin since and no box has
@@ -380,23 +489,15 @@ class FeatureContact:
         n = mesh.n_vertices
         self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.edges = np.ascontiguousarray(mesh.edges, dtype=np.int64)
-        self.x0 = np.zeros((n, 3))
-        self.v0 = np.zeros((n, 3))
-        self.xs = np.zeros((n, 3))
-        self.vs = np.zeros((n, 3))
-        self.xe = np.zeros((n, 3))
+        self.s = Scratch.zeros(n)
         self.xt = np.zeros((n, 3))
-        self.vb = np.zeros((n, 3))
-        self.cb = np.zeros((n, 3))
+        self.xb = np.zeros((n, 3))
         self.loc = np.zeros((n, 3))
-        self.corners = np.zeros((8, 3))
-        self.inv = np.zeros(n)
-        self.stats = np.zeros(5)
         self.move = np.zeros(1)
         self.scratch = np.zeros(1)
+        self.out = np.zeros(1)
         self.sums = np.zeros((0, 6))
         self.steps = 0
-        self.xb = np.zeros((n, 3))
         self.built = None                  # the obstacle rows of the last build
         self.skin = 0.0
         self.builds = 0
@@ -406,15 +507,8 @@ class FeatureContact:
         self._alloc(64)
 
     def _alloc(self, p):
-        self.cand = np.zeros((p, 3), np.int64)
-        self.gi = np.zeros((p, 4), np.int64)
-        self.gw = np.zeros((p, 4))
-        self.gn = np.zeros((p, 3))
-        self.gd = np.zeros(p)
-        self.go = np.zeros((p, 3))
-        self.g0 = np.zeros(p)
-        self.flag = np.zeros(p, np.int64)
-        self.active = np.zeros(p, np.int64)
+        self.p = Pairs.zeros(p)
+        self.late = Pairs.zeros(p)         # the second pass's (:func:`_within`)
 
     @staticmethod
     def present(control) -> bool:
@@ -433,8 +527,8 @@ class FeatureContact:
         return self.sums / max(1, self.steps)
 
     def begin(self, x: np.ndarray, v: np.ndarray) -> None:
-        self.x0[:] = x
-        self.v0[:] = v
+        self.s.x0[:] = x
+        self.s.v0[:] = v
 
     def free_steps(self, x: np.ndarray, v: np.ndarray, control, dt: float) -> int:
         """How many steps the cloth can probably take from (x, v) before any of its
@@ -469,34 +563,33 @@ class FeatureContact:
 
     def _candidates(self, x, ob, th, dt) -> None:
         """The Verlet list (class docstring), built again where this step began if it
-        is stale; then ``self.pairs`` = its length."""
-        move = _largest_motion(x, self.x0)
-        stale = (self.built is None or self.built.shape != ob.shape
-                 or not np.array_equal(self.built[:, :PARAM + 3], ob[:, :PARAM + 3])
-                 or _largest_motion(x, self.xb) > 0.5 * self.skin)
-        self.move[0] = move
-        if not stale:
+        is stale; then ``self.pairs`` = its length and ``self.move[0]`` the step's
+        largest motion of a vertex."""
+        s = self.s
+        if (self.built is not None and self.built.shape == ob.shape
+                and fresh(x, s.x0, self.xb, self.skin, ob, self.built, self.move)):
             return
+        move = _largest_motion(x, s.x0)
+        self.move[0] = move
         self.skin = max(SKIN * th, 2.5 * move)
         while True:
-            nc = candidates(self.x0, self.x0, self.faces, self.edges, ob, th + self.skin, dt,
-                            BOX_EDGES, self.loc, self.corners, self.cand, self.scratch)
-            if nc <= len(self.cand):
+            nc = candidates(s.x0, s.x0, self.faces, self.edges, ob, th + self.skin, dt,
+                            BOX_EDGES, self.loc, s.corners, self.p.cand, self.scratch)
+            if nc <= len(self.p.cand):
                 break
             self._alloc(2 * nc)
         self.pairs = nc
-        self.xb[:] = self.x0
+        self.xb[:] = s.x0
         self.built = ob.copy()
         self.builds += 1
 
     def _pass(self, base, x, v, control, mass, th, dt, shift, part, first, friction):
-        """:func:`respond_boxes` at ``base`` (its arguments from this object)."""
-        return respond_boxes(self.cand, self.pairs, base, x, v, control.obstacles,
+        """:func:`respond_boxes` at ``base`` over every pair (its arguments from this
+        object)."""
+        return respond_boxes(self.p, self.pairs, base, x, v, control.obstacles,
                              control.sdf_meta, control.sdf_data, control.contact,
                              self.faces, self.edges, BOX_EDGES, dt, shift, part, first,
-                             friction, self.corners, self.inv, mass, self.gi, self.gw,
-                             self.gn, self.gd, self.go, self.g0, self.flag, self.active,
-                             self.vb, self.cb, th, SEP_SPEED * dt, SLACK * th, self.stats,
+                             friction, self.s, mass, th, SEP_SPEED * dt, SLACK * th,
                              self.sums)
 
     def after_step(self, state, control, coeff, dt: float) -> float:
@@ -505,46 +598,46 @@ class FeatureContact:
             self.sums = np.zeros((ob.shape[0], 6))
         self.steps += 1
         self.acted = 0
-        if not self.present(control):
-            self.pairs = 0
-            return 0.0
         th = float(control.contact_params[0])
         x, v = state.x, state.v
+        s = self.s
         self._candidates(x, ob, th, dt)
         nc = self.pairs
         if nc == 0:
             return 0.0
-        _inverse_mass(coeff.mass, control.pinned, self.inv)
-        self.xs[:] = x
-        self.vs[:] = v
-        step = float(self.move[0])
-        stages = max(1, int(math.ceil(step / (STAGE * th))))
+        stages = max(1, int(math.ceil(float(self.move[0]) / (STAGE * th))))
         if stages == 1:
-            acted = self._pass(self.x0, x, v, control, coeff.mass, th, dt, 0.0, 1.0, True,
-                               True)
-        else:
-            # the solver's displacement in equal parts, each linearised where the last
-            # one ended (self-collision's stages)
-            self.xt[:] = x
-            x[:] = self.x0
-            acted = 0
-            for j in range(stages):
-                start = self.x0 if j == 0 else self.xe
-                self.xe[:] = x
-                x += (self.xt - self.x0) / stages
-                acted += self._pass(start, x, v, control, coeff.mass, th, dt, j / stages,
-                                    1.0 / stages, j == 0, True)
-            _all_onto_obstacles(x, v, dt, self.inv, coeff.mass, ob, control.sdf_meta,
-                                control.sdf_data, th, control.contact)
-        if acted > 0 or self.g0[:nc].min() < th:
-            # once more from the exact geometry at the step's end, friction applied
-            self.xe[:] = x
-            acted += self._pass(self.xe, x, v, control, coeff.mass, th, dt, 1.0, 0.0,
-                                False, False)
+            self.acted = respond_step(self.p, self.late, nc, s, x, v, ob, control.sdf_meta,
+                                      control.sdf_data, control.contact, self.faces,
+                                      self.edges, BOX_EDGES, coeff.mass, control.pinned,
+                                      dt, th, SEP_SPEED * dt, SLACK * th, self.sums,
+                                      self.out)
+            return float(self.out[0])
+        # a step longer than STAGE th (the implicit solver's): the solver's displacement
+        # in equal parts, each linearised where the last one ended (self-collision's
+        # stages), then once more from the exact geometry at the step's end
+        _inverse_mass(coeff.mass, control.pinned, s.inv)
+        s.xs[:] = x
+        s.vs[:] = v
+        self.xt[:] = x
+        x[:] = s.x0
+        acted = 0
+        for j in range(stages):
+            start = s.x0 if j == 0 else s.xe
+            s.xe[:] = x
+            x += (self.xt - s.x0) / stages
+            acted += self._pass(start, x, v, control, coeff.mass, th, dt, j / stages,
+                                1.0 / stages, j == 0, True)
+        _all_onto_obstacles(x, v, dt, s.inv, coeff.mass, ob, control.sdf_meta,
+                            control.sdf_data, th, control.contact)
+        if acted > 0 or self.p.g0[:nc].min() < th:
+            s.xe[:] = x
+            acted += self._pass(s.xe, x, v, control, coeff.mass, th, dt, 1.0, 0.0, False,
+                                False)
         self.acted = acted
         if acted == 0:
             return 0.0
-        return _ledger(x, self.xs, v, self.vs, self.v0, coeff.mass, dt)
+        return _ledger(x, s.xs, v, s.vs, s.v0, coeff.mass, dt)
 
 
 def warm() -> None:
