@@ -677,7 +677,7 @@ def test_table_config_reports_the_weight_on_the_table():
         assert node.sim.positions[:, 2].max() < -0.29         # on the table or below it
         # the table's edges hold the hanging cloth: their pairs are in /diagnostics
         diag = {kv.key: kv.value for st in node.diagnostics().status for kv in st.values}
-        assert int(diag['box_feature_pairs']) > 0 and 'box_feature_active' in diag
+        assert int(diag['feature_pairs']) > 0 and 'feature_active' in diag
         assert float(diag['deepest_penetration_m']) >= 0.0
     finally:
         ex.shutdown()

@@ -1,5 +1,5 @@
-"""Sharp obstacle features: a box's corners and edges against the cloth's triangles and
-edges.
+"""Sharp obstacle features: the corners and edges of boxes and cylinders against the
+cloth's triangles and edges.
 
 Why
 ---
@@ -8,17 +8,25 @@ On a smooth obstacle whose radius of curvature is well above the cloth's edge le
 that keeps the triangles off it too. A box is not smooth. With cloth edges longer than
 the box (a 25 cm triangle on a 12 cm box) the box passes through a triangle between its
 vertices and the cloth falls around it; and a table edge under a hanging cloth cuts into
-every triangle that crosses it. What is missing are the pairs of a mesh against a mesh,
+every triangle that crosses it. A cylinder's rims do the same (a round table's rim went
+7 mm into the triangles hanging over it), and a side bent tighter than the triangles (a
+3 cm post under a cloth of 12.5 cm triangles) passes between their vertices. What is
+missing are the pairs of a mesh against a mesh,
 those of self-collision (:mod:`.self_contact`), with one side rigid and moved by the
 user:
 
-* corner-triangle: box corner ``p`` and cloth triangle (a, b, c), closest point
+* corner-triangle: obstacle corner ``p`` and cloth triangle (a, b, c), closest point
   ``q = u x_a + v x_b + w x_c`` (Ericson 5.1.5);
-* edge-edge: box edge (p0, p1) and cloth edge (a0, a1), closest points
+* edge-edge: obstacle edge (p0, p1) and cloth edge (a0, a1), closest points
   ``p = (1 - t) p0 + t p1`` and ``q = (1 - s) x_a0 + s x_a1`` (Ericson 5.1.9).
 
 A box's faces against the cloth's vertices are vertex contact; the three kinds together
-are every closest-feature pair of two triangle meshes.
+are every closest-feature pair of two triangle meshes. A cylinder of radius r is taken
+as a prism of K sides with its corners on its rims (2 K corners; 2 K rim sides and K
+edges along its side), K the least for which the sides' sagitta ``r (1 - cos(pi / K))``
+is at most :data:`RIM_SAG` th (:func:`rim_sides`): the prism lies inside the cylinder,
+whose surface stays within 0.1 th of it; its faces against the cloth's vertices are
+the cylinder's vertex contact.
 
 Constraint and response
 -----------------------
@@ -35,25 +43,29 @@ This is self-collision's gap with side B rigid, so the response is self-collisio
 began inside the layer moves back out at most at :data:`.self_contact.SEP_SPEED`. The
 correction is inelastic, a Gauss-Seidel projection; the obstacle has zero inverse mass,
 so the cloth takes all of it. Coulomb friction acts on the slip relative to the obstacle,
-with mu the box's kinetic coefficient. A pair that acted is projected once more from the
+with mu the obstacle's kinetic coefficient. A pair that acted is projected once more from the
 exact geometry at the step's end. A step whose motion exceeds ``STAGE th`` (the implicit
 solver's) is answered in stages, as in self-collision. A pair that ends every step at
 ``g >= th`` along its own normal cannot cross within a step whose relative motion is
 below th. A box placed through the cloth is not pulled back out: that pair's normal
 already points the wrong way.
 
-The cloth's momentum change over the response is the force on the box. It is reported
+The cloth's momentum change over the response is the force on the obstacle. It is reported
 with vertex contact's, in :meth:`.simulator.ClothSimulator.contact_forces`. The energy
 the response removes (:func:`.self_contact._ledger`) counts as dissipation.
 
-Candidates: every step, for each box, the cloth's vertices are taken into the box's
-frame. A triangle or edge is tested against the box's 8 corners or 12 edges only if its
-bounding box, grown by ``th + m``, meets the box's and reaches a face plane ``+-h_a`` on
-at least two axes. Here m is the step's largest motion of a vertex plus the box surface's
+Candidates: for each box or cylinder, the cloth's vertices are taken into its frame. A
+triangle or edge is tested against a box's 8 corners or 12 edges only if its bounding
+box, grown by ``th + m``, meets the box's and reaches a face plane ``+-h_a`` on at least
+two axes. Here m is the step's largest motion of a vertex plus the obstacle surface's
 travel. A point within that distance of an edge is that close to two face planes, so a
-cloth lying inside a face (a table top) is not tested at all. A pair is kept if its
-distance at the start is below ``th + m``. The cost is a few comparisons per element,
-per box and step, and only with a box present.
+cloth lying inside a face (a table top) is not tested at all. Against a cylinder the
+grown bounding box must meet the curved side (z range meeting [-h, h], its x-y
+rectangle's distances from the axis spanning r), and only the corners and edges within
+the rectangle's angular window are tested (:func:`_window`). A pair is kept if its
+distance at the start is below ``th + m``, and the list is kept over steps (a Verlet
+list, :class:`FeatureContact`). The cost is a few comparisons per element and obstacle,
+and only with a box or a cylinder present.
 
 This module imports no ROS package.
 """
@@ -72,9 +84,20 @@ from .self_contact import (SEP_SPEED, STAGE, _all_onto_obstacles, _deficit, _inv
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
-__all__ = ['FeatureContact', 'box_corners', 'BOX_EDGES', 'warm']
+__all__ = ['FeatureContact', 'box_corners', 'feature_corners', 'BOX_EDGES', 'FEATURED',
+           'rim_sides', 'warm']
 
 BOX = SHAPES['box']
+CYLINDER = SHAPES['cylinder']
+#: a cylinder's rim is taken as a regular polygon of K sides with its corners on the
+#: circle, K the least for which the polygon's sides come no further inside the circle
+#: (the sagitta r (1 - cos(pi / K))) than this fraction of th, within [8, RIM_SIDES_MAX]
+RIM_SAG = 0.1
+#: the most sides of a rim polygon (beyond r ~ 3.3 m at th = 2 mm the sagitta grows
+#: above RIM_SAG th: 0.1 th per 3.3 m of radius)
+RIM_SIDES_MAX = 256
+#: the shapes with sharp features: box and cylinder
+FEATURED = (BOX, CYLINDER)
 
 #: a pair short of its target by less than this fraction of th counts as satisfied. Ten
 #: times below self-collision's: a cloth resting on an edge sinks by g dt^2 per step
@@ -108,6 +131,132 @@ def box_corners(ob, k, out):
 
 
 @kernel(inline='always')
+def rim_sides(r, th):
+    """K, the sides of the polygon taken for a rim of radius ``r`` (:data:`RIM_SAG`)."""
+    c = 1.0 - RIM_SAG * th / r
+    if c <= 0.0:
+        return 8
+    return max(8, min(RIM_SIDES_MAX, int(math.ceil(math.pi / math.acos(c)))))
+
+
+@kernel(inline='always')
+def n_features(ob, k, th):
+    """(corners, edges) of obstacle row k: a box 8 and 12; a cylinder, as a prism of K
+    sides (:func:`rim_sides`), 2 K and 3 K (its two rims' sides, then the K edges along
+    its side: a side bent tighter than the cloth's triangles would pass between their
+    vertices as a box's edge would); any other shape 0 and 0 (smooth)."""
+    shape = ob[k, SHAPE]
+    if shape == BOX:
+        return 8, 12
+    if shape == CYLINDER:
+        nr = rim_sides(ob[k, PARAM], th)
+        return 2 * nr, 3 * nr
+    return 0, 0
+
+
+@kernel()
+def feature_corners(ob, k, th, out):
+    """The world positions of row k's corners into ``out`` (n_features(...)[0] rows): a
+    box's 8 (:func:`box_corners`); a cylinder's rim corners, corner ``c K + j`` at angle
+    2 pi j / K on the rim at local z = -h (c = 0) or +h (c = 1)."""
+    if ob[k, SHAPE] == BOX:
+        box_corners(ob, k, out)
+        return
+    r = ob[k, PARAM]
+    h = ob[k, PARAM + 1]
+    nr = rim_sides(r, th)
+    for c in range(2):
+        l2 = h if c else -h
+        for j in range(nr):
+            a = 2.0 * math.pi * j / nr
+            l0 = r * math.cos(a)
+            l1 = r * math.sin(a)
+            for q in range(3):
+                out[c * nr + j, q] = (ob[k, POS + q] + ob[k, ROT + 3 * q] * l0
+                                      + ob[k, ROT + 3 * q + 1] * l1
+                                      + ob[k, ROT + 3 * q + 2] * l2)
+
+
+@kernel(inline='always')
+def edge_ends(ob, k, f, ncorner, box_edges):
+    """The corners (c0, c1) at the ends of row k's edge f: a box's :data:`BOX_EDGES`;
+    a cylinder's rim sides (f < 2 K: corner j to j + 1 round each rim), then its side
+    edges (corner j of one rim to corner j of the other)."""
+    if ob[k, SHAPE] == BOX:
+        return box_edges[f, 0], box_edges[f, 1]
+    nr = ncorner // 2
+    if f >= 2 * nr:
+        return f - 2 * nr, f - nr
+    c = f // nr
+    j = f - c * nr
+    return c * nr + j, c * nr + (j + 1) % nr
+
+
+@kernel(inline='always')
+def _near_rim(loc, ob, k, m, i0, i1, i2):
+    """Whether the element with vertices i0, i1, i2 (cylinder-frame coordinates
+    ``loc``) may come within ``m`` of cylinder k's corners and edges, all on its curved
+    side (rims included): its bounding box grown by m holds a point of that side, so
+    its z range meets [-h, h] and the distances from the axis of its x-y rectangle span
+    r."""
+    h = ob[k, PARAM + 1]
+    r = ob[k, PARAM]
+    lo = min(loc[i0, 2], min(loc[i1, 2], loc[i2, 2])) - m
+    hi = max(loc[i0, 2], max(loc[i1, 2], loc[i2, 2])) + m
+    if lo > h or hi < -h:
+        return False
+    near = 0.0
+    far = 0.0
+    for a in range(2):
+        lo = min(loc[i0, a], min(loc[i1, a], loc[i2, a])) - m
+        hi = max(loc[i0, a], max(loc[i1, a], loc[i2, a])) + m
+        if lo > 0.0:
+            near += lo * lo
+        elif hi < 0.0:
+            near += hi * hi
+        far += max(lo * lo, hi * hi)
+    return near <= r * r <= far
+
+
+@kernel(inline='always')
+def _window(loc, m, i0, i1, i2, nr):
+    """The corners j0 .. j0 + count - 1 (mod K = ``nr``) of a rim whose angle may lie
+    within the x-y rectangle of the element's vertices (cylinder-frame coordinates
+    ``loc``) grown by m, one more on each side (the rim sides that end there): the
+    least and largest angle of the rectangle's corners; all K if it holds the axis."""
+    x0 = min(loc[i0, 0], min(loc[i1, 0], loc[i2, 0])) - m
+    x1 = max(loc[i0, 0], max(loc[i1, 0], loc[i2, 0])) + m
+    y0 = min(loc[i0, 1], min(loc[i1, 1], loc[i2, 1])) - m
+    y1 = max(loc[i0, 1], max(loc[i1, 1], loc[i2, 1])) + m
+    if x0 <= 0.0 <= x1 and y0 <= 0.0 <= y1:
+        return 0, nr
+    mid = math.atan2(0.5 * (y0 + y1), 0.5 * (x0 + x1))
+    lo = 0.0
+    hi = 0.0
+    for c in range(4):
+        a = math.atan2(y1 if c & 2 else y0, x1 if c & 1 else x0) - mid
+        if a > math.pi:                  # unwrapped about the rectangle's middle: the
+            a -= 2.0 * math.pi           # rectangle misses the axis, so it subtends
+        elif a < -math.pi:               # less than pi
+            a += 2.0 * math.pi
+        lo = min(lo, a)
+        hi = max(hi, a)
+    step = 2.0 * math.pi / nr
+    j0 = int(math.floor((mid + lo) / step)) - 1
+    count = min(nr, int(math.ceil((mid + hi) / step)) + 1 - j0 + 1)
+    return j0 % nr, count
+
+
+@kernel(inline='always')
+def _outside(lo, hi, p, q):
+    """Whether the box [lo, hi] misses the bounding box of points p and q."""
+    for a in range(3):
+        if min(p[a], q[a]) > hi[a] or max(p[a], q[a]) < lo[a]:
+            return True
+    return False
+
+
+@kernel(inline='always')
 def _near_features(loc, ob, k, m, i0, i1, i2):
     """Whether the element with vertices i0, i1, i2 (box-frame coordinates ``loc``; an
     edge repeats one) may come within ``m`` of box k's corners or edges: its bounding box
@@ -127,12 +276,15 @@ def _near_features(loc, ob, k, m, i0, i1, i2):
 
 @kernel()
 def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, out):
-    """The pairs that may come within ``th`` of a box in this step (module docstring),
-    rows (box row k, feature f, cloth element e) of ``cand``: f < 8 corner f against
-    face e, f >= 8 box edge f - 8 against cloth edge e; boxes in row order, so each
-    box's pairs are contiguous. Returns how many (more than ``len(cand)``: only counted,
-    call again with room). ``loc`` (n, 3): room for the vertices in a box's frame;
-    ``out[0]``: the step's largest motion of a vertex [m]."""
+    """The pairs that may come within ``th`` of a box's or a cylinder's features in this
+    step (module docstring), rows (obstacle row k, feature f, cloth element e) of
+    ``cand``: f below the row's corner count C corner f against face e, else edge f - C
+    against cloth edge e; rows in order, so each obstacle's pairs are contiguous.
+    Returns how many (more than ``len(cand)``: only counted, call again with room).
+    ``loc`` (n, 3): room for the vertices in an obstacle's frame; ``corners``: room for
+    its corners; ``out[0]``: the step's largest motion of a vertex [m]. The features
+    are those at the contact thickness ``out[1]`` (a cylinder's rim polygon depends on
+    it, :func:`rim_sides`)."""
     n = x0.shape[0]
     move = 0.0
     for i in range(n):
@@ -142,11 +294,17 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
         move = max(move, d0 * d0 + d1 * d1 + d2 * d2)
     move = math.sqrt(move)
     out[0] = move
+    lay = out[1]
     cap = cand.shape[0]
+    lo = np.empty(3)
+    hi = np.empty(3)
     nc = 0
     for k in range(ob.shape[0]):
-        if ob[k, SHAPE] != BOX:
+        ncorner, nedge = n_features(ob, k, lay)
+        if ncorner == 0:
             continue
+        rim = ob[k, SHAPE] == CYLINDER
+        nr = ncorner // 2
         margin = th + move + dt * ob[k, SPEED]
         lim2 = margin * margin
         for i in range(n):
@@ -156,14 +314,25 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
             for a in range(3):
                 loc[i, a] = (ob[k, ROT + a] * d0 + ob[k, ROT + 3 + a] * d1
                              + ob[k, ROT + 6 + a] * d2)
-        box_corners(ob, k, corners)
+        feature_corners(ob, k, lay, corners)
         for t in range(faces.shape[0]):
             a = faces[t, 0]
             b = faces[t, 1]
             c = faces[t, 2]
-            if not _near_features(loc, ob, k, margin, a, b, c):
+            if rim:
+                if not _near_rim(loc, ob, k, margin, a, b, c):
+                    continue
+            elif not _near_features(loc, ob, k, margin, a, b, c):
                 continue
-            for f in range(8):
+            for q in range(3):
+                lo[q] = min(x0[a, q], min(x0[b, q], x0[c, q])) - margin
+                hi[q] = max(x0[a, q], max(x0[b, q], x0[c, q])) + margin
+            # a box: its 8 corners; a cylinder: the window's on both rims
+            j0, count = _window(loc, margin, a, b, c, nr) if rim else (0, ncorner)
+            for q in range(2 * count if rim else ncorner):
+                f = (q % 2) * nr + (j0 + q // 2) % nr if rim else q
+                if _outside(lo, hi, corners[f], corners[f]):
+                    continue
                 dd, u, v, w = point_triangle_sq(corners[f, 0], corners[f, 1], corners[f, 2],
                                                 x0[a], x0[b], x0[c])
                 if dd < lim2:
@@ -175,15 +344,26 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
         for e in range(edges.shape[0]):
             a = edges[e, 0]
             b = edges[e, 1]
-            if not _near_features(loc, ob, k, margin, a, b, b):
+            if rim:
+                if not _near_rim(loc, ob, k, margin, a, b, b):
+                    continue
+            elif not _near_features(loc, ob, k, margin, a, b, b):
                 continue
-            for f in range(12):
-                dd, s, t = segment_segment(x0[a], x0[b], corners[box_edges[f, 0]],
-                                           corners[box_edges[f, 1]])
+            for q in range(3):
+                lo[q] = min(x0[a, q], x0[b, q]) - margin
+                hi[q] = max(x0[a, q], x0[b, q]) + margin
+            # a box: its 12 edges; a cylinder: the window's rim sides and side edges
+            j0, count = _window(loc, margin, a, b, b, nr) if rim else (0, nedge)
+            for q in range(3 * count if rim else nedge):
+                f = (q % 3) * nr + (j0 + q // 3) % nr if rim else q
+                c0, c1 = edge_ends(ob, k, f, ncorner, box_edges)
+                if _outside(lo, hi, corners[c0], corners[c1]):
+                    continue
+                dd, s, t = segment_segment(x0[a], x0[b], corners[c0], corners[c1])
                 if dd < lim2:
                     if nc < cap:
                         cand[nc, 0] = k
-                        cand[nc, 1] = 8 + f
+                        cand[nc, 1] = ncorner + f
                         cand[nc, 2] = e
                     nc += 1
     return nc
@@ -198,18 +378,20 @@ def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corn
     and 1; its end: 1 and 0; a stage j of m: j / m and 1 / m): vertices gi (P,4), weights
     gw (P,4), normal gn (P,3) from the box to the cloth, distance gd (P,), the box's
     displacement go (P,3). A pair at zero distance takes the triangle's normal (or the
-    edges' cross product) turned away from the box's centre. ``first``: g0 takes gd
+    edges' cross product) turned away from the obstacle's centre. ``first``: g0 takes gd
     (the distance that sets each pair's target). flag[p]: 1 if short at x by more
     than ``slack`` [m]."""
     last = -1
+    ncorner = 0
     for p in range(nc):
         k = cand[p, 0]
         f = cand[p, 1]
         e = cand[p, 2]
         if k != last:
-            box_corners(ob, k, corners)
+            feature_corners(ob, k, th, corners)
+            ncorner = n_features(ob, k, th)[0]
             last = k
-        if f < 8:
+        if f < ncorner:
             a = faces[e, 0]
             b = faces[e, 1]
             c = faces[e, 2]
@@ -231,8 +413,7 @@ def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corn
         else:
             a = edges[e, 0]
             b = edges[e, 1]
-            c0 = box_edges[f - 8, 0]
-            c1 = box_edges[f - 8, 1]
+            c0, c1 = edge_ends(ob, k, f - ncorner, ncorner, box_edges)
             dd, s, t = segment_segment(xs[a], xs[b], corners[c0], corners[c1])
             p0 = corners[c0, 0] + t * (corners[c1, 0] - corners[c0, 0])
             p1 = corners[c0, 1] + t * (corners[c1, 1] - corners[c0, 1])
@@ -313,7 +494,7 @@ def clearance(x, v, edges, ob, meta, data, th):
     near = np.inf
     speed = 0.0
     for k in range(ob.shape[0]):
-        if ob[k, SHAPE] != BOX:
+        if ob[k, SHAPE] != BOX and ob[k, SHAPE] != CYLINDER:
             continue
         speed = max(speed, ob[k, SPEED])
         for i in range(x.shape[0]):
@@ -361,7 +542,8 @@ class Scratch(NamedTuple):
     """Per-vertex (n, 3) arrays of a step's response: where the step began ``x0``, ``v0``;
     where the response began ``xs``, ``vs``; the base of its last pass ``xe``; the
     velocities and contact forces before a box's projection ``vb``, ``cb``; inverse masses
-    ``inv`` (n,); a box's ``corners`` (8, 3); the projection's ``stats`` (5,)."""
+    ``inv`` (n,); an obstacle's ``corners`` (at most 2 :data:`RIM_SIDES_MAX`, 3); the
+    projection's ``stats`` (5,)."""
     x0: np.ndarray
     v0: np.ndarray
     xs: np.ndarray
@@ -376,7 +558,8 @@ class Scratch(NamedTuple):
     @staticmethod
     def zeros(n: int) -> 'Scratch':
         z = [np.zeros((n, 3)) for _ in range(7)]
-        return Scratch(*z, np.zeros(n), np.zeros((8, 3)), np.zeros(5))
+        return Scratch(*z, np.zeros(n), np.zeros((2 * RIM_SIDES_MAX, 3)),
+                       np.zeros(5))
 
 
 @kernel()
@@ -472,11 +655,11 @@ def fresh(x, x0, xb, skin, ob, built, move):
 
 
 class FeatureContact:
-    """The corners and edges of the boxes among a simulator's obstacles against its
-    cloth (module docstring).
+    """The corners and edges of the boxes and cylinders among a simulator's obstacles
+    against its cloth (module docstring).
 
     ``start()`` before a call's steps, ``begin(x, v)`` before each step,
-    ``after_step(state, control, coeff, dt)`` after it, while a box is present
+    ``after_step(state, control, coeff, dt)`` after it, while a box or cylinder is present
     (:meth:`present`): the response, in place; returns the energy it removed [J].
     :attr:`forces` (obstacle rows, 6): the force and torque each box took through its
     features, the mean over the steps since ``start()``.
@@ -494,11 +677,12 @@ class FeatureContact:
         self.xb = np.zeros((n, 3))
         self.loc = np.zeros((n, 3))
         self.move = np.zeros(1)
-        self.scratch = np.zeros(1)
+        self.scratch = np.zeros(2)
         self.out = np.zeros(1)
         self.sums = np.zeros((0, 6))
         self.steps = 0
         self.built = None                  # the obstacle rows of the last build
+        self.built_th = 0.0                # and its contact thickness
         self.skin = 0.0
         self.builds = 0
         self.pairs = 0
@@ -512,9 +696,9 @@ class FeatureContact:
 
     @staticmethod
     def present(control) -> bool:
-        """Whether any obstacle is a box (else nothing to do)."""
+        """Whether any obstacle is a box or a cylinder (else nothing to do)."""
         ob = control.obstacles
-        return bool(ob.shape[0]) and bool((ob[:, SHAPE] == BOX).any())
+        return bool(ob.shape[0]) and bool(np.isin(ob[:, SHAPE], FEATURED).any())
 
     def start(self) -> None:
         self.sums[:] = 0.0
@@ -557,7 +741,7 @@ class FeatureContact:
         speed = 0.0
         ob = control.obstacles
         for k in range(ob.shape[0]):
-            if ob[k, SHAPE] == BOX:
+            if ob[k, SHAPE] in FEATURED:
                 speed = max(speed, float(ob[k, SPEED]))
         return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
 
@@ -566,12 +750,13 @@ class FeatureContact:
         is stale; then ``self.pairs`` = its length and ``self.move[0]`` the step's
         largest motion of a vertex."""
         s = self.s
-        if (self.built is not None and self.built.shape == ob.shape
+        if (self.built is not None and self.built.shape == ob.shape and self.built_th == th
                 and fresh(x, s.x0, self.xb, self.skin, ob, self.built, self.move)):
             return
         move = _largest_motion(x, s.x0)
         self.move[0] = move
         self.skin = max(SKIN * th, 2.5 * move)
+        self.scratch[1] = th                 # the features' own thickness (rim polygons)
         while True:
             nc = candidates(s.x0, s.x0, self.faces, self.edges, ob, th + self.skin, dt,
                             BOX_EDGES, self.loc, s.corners, self.p.cand, self.scratch)
@@ -581,6 +766,7 @@ class FeatureContact:
         self.pairs = nc
         self.xb[:] = s.x0
         self.built = ob.copy()
+        self.built_th = th
         self.builds += 1
 
     def _pass(self, base, x, v, control, mass, th, dt, shift, part, first, friction):

@@ -134,7 +134,7 @@ class ClothSimulator:
         self._obstacles = ObstacleSet()
         self._handles = HandleSet()
         self._self: Optional[SelfCollision] = None     # built when first switched on
-        self._features = FeatureContact(mesh)           # boxes' corners and edges
+        self._features = FeatureContact(mesh)           # boxes' and cylinders' edges
         self._self_on = False
         self._self_friction = DEFAULT_FRICTION
         self._user_pins = np.zeros(n, dtype=bool)
@@ -621,16 +621,17 @@ class ClothSimulator:
     def contact_state(self) -> Dict[str, float]:
         """Contact counts and depth of the last step: ``contacts`` (vertices in contact),
         ``deepest`` [m] (how far the deepest vertex was inside the contact layer at the
-        start of its step, >= 0), ``box_feature_pairs`` (candidate pairs of a box's
-        corners and edges with the cloth's triangles and edges, :mod:`.features`) and
-        ``box_feature_active`` (those the last step's response moved)."""
+        start of its step, >= 0), ``feature_pairs`` (candidate pairs of the corners and
+        edges of boxes and cylinders with the cloth's triangles and edges,
+        :mod:`.features`) and
+        ``feature_active`` (those the last step's response moved)."""
         c = self.control.contact
         active = c[:, 3] >= 0
         gap = c[:, 4]
         deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
         return {'contacts': int(active.sum()), 'deepest': deepest,
-                'box_feature_pairs': int(self._features.pairs),
-                'box_feature_active': int(self._features.acted)}
+                'feature_pairs': int(self._features.pairs),
+                'feature_active': int(self._features.acted)}
 
     @property
     def contact_thickness(self) -> float:

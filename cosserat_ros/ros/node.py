@@ -1098,8 +1098,8 @@ class ClothNode(Node):
             cs = self.sim.contact_state()
             vals['contacts'] = cs['contacts']
             vals['deepest_penetration_m'] = float(cs['deepest'])
-            vals['box_feature_pairs'] = cs['box_feature_pairs']
-            vals['box_feature_active'] = cs['box_feature_active']
+            vals['feature_pairs'] = cs['feature_pairs']
+            vals['feature_active'] = cs['feature_active']
         if self.sim.self_collision:
             sc = self.sim.self_contact_state()
             vals['self_pairs_active'] = sc['active']
