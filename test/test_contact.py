@@ -661,3 +661,78 @@ def test_a_cloth_over_a_round_table_and_the_weight_it_puts_on_it():
     assert (f[table][0] + f[ground][0])[2] == pytest.approx(-weight, rel=0.01)
     assert f[table][0][2] < -0.5 * weight                # the table carries most of it
     assert sim.contact_state()['feature_pairs'] > 0
+
+
+def test_sharp_features_of_a_mesh():
+    """The corners and edges of a mesh obstacle that meet the cloth's triangles and
+    edges: its convex edges whose faces turn by more than 30 degrees."""
+    from cosserat_ros.core.features import sharp_features
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    corners, edges = sharp_features(box.vertices, box.faces)
+    assert len(corners) == 8 and len(edges) == 12           # not the faces' diagonals
+    assert sorted(np.round(np.linalg.norm(corners[edges[:, 0]] - corners[edges[:, 1]],
+                                          axis=1), 9)) == [1.0] * 4 + [2.0] * 4 + [3.0] * 4
+    ico = trimesh.creation.icosphere(subdivisions=4)
+    assert len(sharp_features(ico.vertices, ico.faces)[1]) == 0        # smooth
+    can = trimesh.creation.cylinder(radius=0.3, height=0.04, sections=64)
+    corners, edges = sharp_features(can.vertices, can.faces)
+    assert len(edges) == 128                  # the two rims; the side turns 5.6 degrees
+    assert np.allclose(np.abs(corners[:, 2]), 0.02)
+    # a box with a notch cut into its top: the notch's floor edges are concave
+    verts = np.array([[0, 0, 0], [3, 0, 0], [3, 1, 0], [0, 1, 0],
+                      [0, 0, 2], [1, 0, 2], [1, 0, 1], [2, 0, 1], [2, 0, 2], [3, 0, 2],
+                      [0, 1, 2], [1, 1, 2], [1, 1, 1], [2, 1, 1], [2, 1, 2], [3, 1, 2]],
+                     dtype=float)
+    notched = trimesh.Trimesh(verts, _notched_faces(), process=False)
+    assert notched.is_watertight and notched.volume > 0
+    corners, edges = sharp_features(notched.vertices, notched.faces)
+    ends = {tuple(sorted(map(tuple, np.round(corners[e], 9)))) for e in edges}
+    assert ((1.0, 0.0, 1.0), (1.0, 1.0, 1.0)) not in ends      # concave: left out
+    assert ((1.0, 0.0, 2.0), (1.0, 1.0, 2.0)) in ends          # the notch's lip: convex
+    assert len(edges) == 22           # 8 + 8 round the outlines, 6 of the 8 across
+
+
+def _notched_faces():
+    """Faces (outward: the test checks the volume's sign) of the notched box of
+    :func:`test_sharp_features_of_a_mesh`: its outline in the x-z plane at y = 0
+    (vertices 0, 1, 9, 8, 7, 6, 5, 4) and at y = 1 (3, 2, 15, 14, 13, 12, 11, 10),
+    triangulated, and the walls between them."""
+    front = [0, 1, 9, 8, 7, 6, 5, 4]
+    back = [3, 2, 15, 14, 13, 12, 11, 10]
+    # the outline is an L-notched polygon: fan it into triangles by ear clipping
+    poly = np.array([[0, 0], [3, 0], [3, 2], [2, 2], [2, 1], [1, 1], [1, 2], [0, 2]], float)
+    tris = [[0, 1, 4], [1, 2, 4], [2, 3, 4], [0, 4, 5], [0, 5, 7], [5, 6, 7]]
+    u, w = poly[[t[1] for t in tris]] - poly[[t[0] for t in tris]], \
+        poly[[t[2] for t in tris]] - poly[[t[0] for t in tris]]
+    assert (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0] > 0).all()        # counter-clockwise
+    faces = [[front[a], front[b], front[c]] for a, b, c in tris]
+    faces += [[back[a], back[c], back[b]] for a, b, c in tris]
+    for k in range(8):                    # the side walls round the outline
+        a, b = front[k], front[(k + 1) % 8]
+        c, d = back[k], back[(k + 1) % 8]
+        faces += [[a, d, b], [a, c, d]]
+    return np.array(faces)
+
+
+def test_a_mesh_obstacles_sharp_edges_do_not_poke_through_a_coarse_cloth():
+    """The turned 12 cm box of the test above given as a triangle mesh: vertex contact
+    reads its distance field, whose edges are rounded over a cell, and before the mesh's
+    sharp corners and edges met the cloth's triangles and edges it went through them as
+    the box primitive did."""
+    sim = _sim(8, 1.0, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                         damping=0.3))
+    q = (0.0, 0.0, math.sin(math.pi / 16), math.cos(math.pi / 16))
+    center, half = np.array([0.07, 0.05, -0.12]), np.array([0.06, 0.06, 0.1])
+    box = trimesh.creation.box(extents=2 * half)
+    sim.add_obstacle('mesh', vertices=box.vertices, faces=box.faces, center=center,
+                     orientation=q, spacing=0.01)
+    sim.add_obstacle('plane', point=(0, 0, -0.22))
+    rot = C.rotation_matrix(np.array(q))
+    grown = half + 0.5 * sim.contact_thickness
+    frame = max(1, int(round(FRAME / sim.dt)))
+    for _ in range(int(2.5 / FRAME)):
+        sim.step(frame)
+        assert _triangles_meeting_box(sim.positions, sim.mesh.faces, center, rot,
+                                      grown) == 0, sim.time
+    assert sim.positions[:, 2].max() > center[2] + half[2]     # on the box, not round it
+    assert sim.contact_state()['feature_pairs'] > 0

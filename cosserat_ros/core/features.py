@@ -1,5 +1,5 @@
-"""Sharp obstacle features: the corners and edges of boxes and cylinders against the
-cloth's triangles and edges.
+"""Sharp obstacle features: the corners and edges of boxes, cylinders and meshes
+against the cloth's triangles and edges.
 
 Why
 ---
@@ -26,7 +26,10 @@ as a prism of K sides with its corners on its rims (2 K corners; 2 K rim sides a
 edges along its side), K the least for which the sides' sagitta ``r (1 - cos(pi / K))``
 is at most :data:`RIM_SAG` th (:func:`rim_sides`): the prism lies inside the cylinder,
 whose surface stays within 0.1 th of it; its faces against the cloth's vertices are
-the cylinder's vertex contact.
+the cylinder's vertex contact. A mesh obstacle's features are its sharp convex edges
+and their end points (:func:`sharp_features`); vertex contact reads its distance
+field, which rounds every edge over a cell, so without them a box given as a mesh
+went 8.8 mm into the triangles of a cloth over its edge, as the box primitive did.
 
 Constraint and response
 -----------------------
@@ -62,7 +65,9 @@ travel. A point within that distance of an edge is that close to two face planes
 cloth lying inside a face (a table top) is not tested at all. Against a cylinder the
 grown bounding box must meet the curved side (z range meeting [-h, h], its x-y
 rectangle's distances from the axis spanning r), and only the corners and edges within
-the rectangle's angular window are tested (:func:`_window`). A pair is kept if its
+the rectangle's angular window are tested (:func:`_window`); against a mesh, the grown
+bounding box must meet the box round its sharp corners, and each corner and edge is
+then tested after a bounding-box check. A pair is kept if its
 distance at the start is below ``th + m``, and the list is kept over steps (a Verlet
 list, :class:`FeatureContact`). The cost is a few comparisons per element and obstacle,
 and only with a box or a cylinder present.
@@ -96,8 +101,64 @@ RIM_SAG = 0.1
 #: the most sides of a rim polygon (beyond r ~ 3.3 m at th = 2 mm the sagitta grows
 #: above RIM_SAG th: 0.1 th per 3.3 m of radius)
 RIM_SIDES_MAX = 256
-#: the shapes with sharp features: box and cylinder
+MESH = SHAPES['mesh']
+#: the shapes with sharp features: box and cylinder (and a mesh with sharp edges:
+#: :func:`sharp_features`)
 FEATURED = (BOX, CYLINDER)
+#: [degrees] a mesh obstacle's edge is sharp where its two faces' normals differ by
+#: more than this and the edge is convex (it bulges towards the cloth)
+SHARP_ANGLE = 30.0
+#: the columns of :attr:`Shapes.fmeta`, per obstacle row: first corner, corners, first
+#: edge, edges, then the corners' bounding box in the obstacle's frame (lo, hi)
+FM_CORNER, FM_NCORNER, FM_EDGE, FM_NEDGE, FM_LO, FM_HI = 0, 1, 2, 3, 4, 7
+FM_WIDTH = 10
+
+
+class Shapes(NamedTuple):
+    """The features of the obstacle rows beyond their table row: the box's edges
+    (:data:`BOX_EDGES`), and the sharp corners and edges of the mesh obstacles
+    (:func:`sharp_features`): ``fmeta`` (rows, :data:`FM_WIDTH`), their corners
+    ``fcorner`` (C, 3) in each obstacle's frame, their edges ``fedge`` (E, 2) as corner
+    indices of their row."""
+    box_edges: np.ndarray
+    fmeta: np.ndarray
+    fcorner: np.ndarray
+    fedge: np.ndarray
+
+
+def sharp_features(verts: np.ndarray, faces: np.ndarray, angle: float = SHARP_ANGLE):
+    """The sharp convex edges of a closed triangle mesh (two faces whose normals differ
+    by more than ``angle`` degrees, the edge bulging out: each face's far vertex below
+    the other's plane) and their end points: (corners (C, 3), edges (E, 2) indices into
+    corners). A smooth mesh (a sphere's) has none; a box's twelve edges and eight
+    corners."""
+    verts = np.asarray(verts, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    owner = np.tile(np.arange(len(faces)), 3)
+    far = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    key = np.sort(half, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, owner, far, half = key[order], owner[order], far[order], half[order]
+    # a closed mesh: every edge twice, once each way, in consecutive rows once sorted
+    same = np.all(key[0::2] == key[1::2], axis=1)
+    if not same.all():
+        raise ValueError('sharp_features needs a closed mesh (each edge in two faces)')
+    f1, f2 = owner[0::2], owner[1::2]
+    cosine = np.einsum('ij,ij->i', n[f1], n[f2])
+    convex = np.einsum('ij,ij->i', verts[far[1::2]] - verts[key[0::2, 0]], n[f1]) < 0.0
+    sharp = (cosine < math.cos(math.radians(angle))) & convex
+    edges = key[0::2][sharp]
+    used, inverse = np.unique(edges, return_inverse=True)
+    return verts[used].copy(), inverse.reshape(-1, 2).astype(np.int64)
+
+
+def no_shapes(rows: int = 0) -> Shapes:
+    """The :class:`Shapes` of obstacle rows without mesh features."""
+    return Shapes(BOX_EDGES, np.zeros((rows, FM_WIDTH)), np.zeros((0, 3)),
+                  np.zeros((0, 2), np.int64))
 
 #: a pair short of its target by less than this fraction of th counts as satisfied. Ten
 #: times below self-collision's: a cloth resting on an edge sinks by g dt^2 per step
@@ -140,27 +201,41 @@ def rim_sides(r, th):
 
 
 @kernel(inline='always')
-def n_features(ob, k, th):
+def n_features(ob, k, th, sh):
     """(corners, edges) of obstacle row k: a box 8 and 12; a cylinder, as a prism of K
     sides (:func:`rim_sides`), 2 K and 3 K (its two rims' sides, then the K edges along
     its side: a side bent tighter than the cloth's triangles would pass between their
-    vertices as a box's edge would); any other shape 0 and 0 (smooth)."""
+    vertices as a box's edge would); a mesh, its sharp corners and edges (``sh``,
+    :func:`sharp_features`); any other shape 0 and 0 (smooth)."""
     shape = ob[k, SHAPE]
     if shape == BOX:
         return 8, 12
     if shape == CYLINDER:
         nr = rim_sides(ob[k, PARAM], th)
         return 2 * nr, 3 * nr
+    if shape == MESH and k < sh.fmeta.shape[0]:
+        return int(sh.fmeta[k, FM_NCORNER]), int(sh.fmeta[k, FM_NEDGE])
     return 0, 0
 
 
 @kernel()
-def feature_corners(ob, k, th, out):
+def feature_corners(ob, k, th, sh, out):
     """The world positions of row k's corners into ``out`` (n_features(...)[0] rows): a
     box's 8 (:func:`box_corners`); a cylinder's rim corners, corner ``c K + j`` at angle
-    2 pi j / K on the rim at local z = -h (c = 0) or +h (c = 1)."""
+    2 pi j / K on the rim at local z = -h (c = 0) or +h (c = 1); a mesh's sharp
+    corners (``sh``)."""
     if ob[k, SHAPE] == BOX:
         box_corners(ob, k, out)
+        return
+    if ob[k, SHAPE] == MESH:
+        c0 = int(sh.fmeta[k, FM_CORNER])
+        for c in range(int(sh.fmeta[k, FM_NCORNER])):
+            l0 = sh.fcorner[c0 + c, 0]
+            l1 = sh.fcorner[c0 + c, 1]
+            l2 = sh.fcorner[c0 + c, 2]
+            for q in range(3):
+                out[c, q] = (ob[k, POS + q] + ob[k, ROT + 3 * q] * l0
+                             + ob[k, ROT + 3 * q + 1] * l1 + ob[k, ROT + 3 * q + 2] * l2)
         return
     r = ob[k, PARAM]
     h = ob[k, PARAM + 1]
@@ -178,12 +253,15 @@ def feature_corners(ob, k, th, out):
 
 
 @kernel(inline='always')
-def edge_ends(ob, k, f, ncorner, box_edges):
+def edge_ends(ob, k, f, ncorner, sh):
     """The corners (c0, c1) at the ends of row k's edge f: a box's :data:`BOX_EDGES`;
     a cylinder's rim sides (f < 2 K: corner j to j + 1 round each rim), then its side
-    edges (corner j of one rim to corner j of the other)."""
+    edges (corner j of one rim to corner j of the other); a mesh's sharp edges."""
     if ob[k, SHAPE] == BOX:
-        return box_edges[f, 0], box_edges[f, 1]
+        return sh.box_edges[f, 0], sh.box_edges[f, 1]
+    if ob[k, SHAPE] == MESH:
+        e = int(sh.fmeta[k, FM_EDGE]) + f
+        return sh.fedge[e, 0], sh.fedge[e, 1]
     nr = ncorner // 2
     if f >= 2 * nr:
         return f - 2 * nr, f - nr
@@ -216,6 +294,18 @@ def _near_rim(loc, ob, k, m, i0, i1, i2):
             near += hi * hi
         far += max(lo * lo, hi * hi)
     return near <= r * r <= far
+
+
+@kernel(inline='always')
+def _near_mesh(loc, sh, k, m, i0, i1, i2):
+    """Whether the element with vertices i0, i1, i2 (obstacle-frame coordinates
+    ``loc``), its bounding box grown by m, meets the box round mesh k's sharp corners."""
+    for a in range(3):
+        lo = min(loc[i0, a], min(loc[i1, a], loc[i2, a])) - m
+        hi = max(loc[i0, a], max(loc[i1, a], loc[i2, a])) + m
+        if lo > sh.fmeta[k, FM_HI + a] or hi < sh.fmeta[k, FM_LO + a]:
+            return False
+    return True
 
 
 @kernel(inline='always')
@@ -275,7 +365,7 @@ def _near_features(loc, ob, k, m, i0, i1, i2):
 
 
 @kernel()
-def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, out):
+def candidates(x0, x, faces, edges, ob, th, dt, sh, loc, corners, cand, out):
     """The pairs that may come within ``th`` of a box's or a cylinder's features in this
     step (module docstring), rows (obstacle row k, feature f, cloth element e) of
     ``cand``: f below the row's corner count C corner f against face e, else edge f - C
@@ -300,10 +390,11 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
     hi = np.empty(3)
     nc = 0
     for k in range(ob.shape[0]):
-        ncorner, nedge = n_features(ob, k, lay)
+        ncorner, nedge = n_features(ob, k, lay, sh)
         if ncorner == 0:
             continue
         rim = ob[k, SHAPE] == CYLINDER
+        mesh = ob[k, SHAPE] == MESH
         nr = ncorner // 2
         margin = th + move + dt * ob[k, SPEED]
         lim2 = margin * margin
@@ -314,13 +405,16 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
             for a in range(3):
                 loc[i, a] = (ob[k, ROT + a] * d0 + ob[k, ROT + 3 + a] * d1
                              + ob[k, ROT + 6 + a] * d2)
-        feature_corners(ob, k, lay, corners)
+        feature_corners(ob, k, lay, sh, corners)
         for t in range(faces.shape[0]):
             a = faces[t, 0]
             b = faces[t, 1]
             c = faces[t, 2]
             if rim:
                 if not _near_rim(loc, ob, k, margin, a, b, c):
+                    continue
+            elif mesh:
+                if not _near_mesh(loc, sh, k, margin, a, b, c):
                     continue
             elif not _near_features(loc, ob, k, margin, a, b, c):
                 continue
@@ -347,6 +441,9 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
             if rim:
                 if not _near_rim(loc, ob, k, margin, a, b, b):
                     continue
+            elif mesh:
+                if not _near_mesh(loc, sh, k, margin, a, b, b):
+                    continue
             elif not _near_features(loc, ob, k, margin, a, b, b):
                 continue
             for q in range(3):
@@ -356,7 +453,7 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
             j0, count = _window(loc, margin, a, b, b, nr) if rim else (0, nedge)
             for q in range(3 * count if rim else nedge):
                 f = (q % 3) * nr + (j0 + q // 3) % nr if rim else q
-                c0, c1 = edge_ends(ob, k, f, ncorner, box_edges)
+                c0, c1 = edge_ends(ob, k, f, ncorner, sh)
                 if _outside(lo, hi, corners[c0], corners[c1]):
                     continue
                 dd, s, t = segment_segment(x0[a], x0[b], corners[c0], corners[c1])
@@ -370,7 +467,7 @@ def candidates(x0, x, faces, edges, ob, th, dt, box_edges, loc, corners, cand, o
 
 
 @kernel()
-def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corners, gi,
+def geometry(cand, nc, xs, x, ob, faces, edges, sh, dt, shift, part, corners, gi,
              gw, gn, gd, go, g0, first, th, sep, slack, flag):
     """The constraint of each pair ``cand[:nc]`` (module docstring) linearised at the
     cloth's positions ``xs``, with the box moved on by ``shift`` of its step's
@@ -388,8 +485,8 @@ def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corn
         f = cand[p, 1]
         e = cand[p, 2]
         if k != last:
-            feature_corners(ob, k, th, corners)
-            ncorner = n_features(ob, k, th)[0]
+            feature_corners(ob, k, th, sh, corners)
+            ncorner = n_features(ob, k, th, sh)[0]
             last = k
         if f < ncorner:
             a = faces[e, 0]
@@ -413,7 +510,7 @@ def geometry(cand, nc, xs, x, ob, faces, edges, box_edges, dt, shift, part, corn
         else:
             a = edges[e, 0]
             b = edges[e, 1]
-            c0, c1 = edge_ends(ob, k, f - ncorner, ncorner, box_edges)
+            c0, c1 = edge_ends(ob, k, f - ncorner, ncorner, sh)
             dd, s, t = segment_segment(xs[a], xs[b], corners[c0], corners[c1])
             p0 = corners[c0, 0] + t * (corners[c1, 0] - corners[c0, 0])
             p1 = corners[c0, 1] + t * (corners[c1, 1] - corners[c0, 1])
@@ -476,7 +573,7 @@ def _impulse(x, v, v_before, c_before, contact, mass, dt, ob, k, out):
 
 
 @kernel()
-def clearance(x, v, edges, ob, meta, data, th):
+def clearance(x, v, edges, ob, meta, data, th, sh):
     """(how far every box is from the cloth beyond its longest edge plus ``th`` [m],
     the fastest any box's surface moves [m/s], the fastest vertex [m/s]):
     :meth:`FeatureContact.free_steps`."""
@@ -494,7 +591,7 @@ def clearance(x, v, edges, ob, meta, data, th):
     near = np.inf
     speed = 0.0
     for k in range(ob.shape[0]):
-        if ob[k, SHAPE] != BOX and ob[k, SHAPE] != CYLINDER:
+        if n_features(ob, k, th, sh)[0] == 0:
             continue
         speed = max(speed, ob[k, SPEED])
         for i in range(x.shape[0]):
@@ -563,7 +660,7 @@ class Scratch(NamedTuple):
 
 
 @kernel()
-def respond_boxes(pairs, nc, base, x, v, ob, meta, data, contact, faces, edges, box_edges,
+def respond_boxes(pairs, nc, base, x, v, ob, meta, data, contact, faces, edges, sh,
                   dt, shift, part, first, friction, s, mass, th, sep, slack, forces):
     """One pass of the response (module docstring): the constraints of ``pairs[:nc]``
     linearised at ``base`` (:func:`geometry`), then self-collision's projection box by
@@ -571,7 +668,7 @@ def respond_boxes(pairs, nc, base, x, v, ob, meta, data, contact, faces, edges, 
     and torque added to ``forces[k]`` (:func:`_impulse`). Returns how many pairs
     acted."""
     P = pairs
-    geometry(P.cand, nc, base, x, ob, faces, edges, box_edges, dt, shift, part, s.corners,
+    geometry(P.cand, nc, base, x, ob, faces, edges, sh, dt, shift, part, s.corners,
              P.gi, P.gw, P.gn, P.gd, P.go, P.g0, first, th, sep, slack, P.flag)
     acted = 0
     a = 0
@@ -614,7 +711,7 @@ def _within(pairs, nc, ob, dt, reach, late):
 
 @kernel()
 def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges,
-                 box_edges, mass, pinned, dt, th, sep, slack, forces, out):
+                 sh, mass, pinned, dt, th, sep, slack, forces, out):
     """The response to one step from ``s.x0, s.v0`` to (x, v), in place and in one
     stage: a pass from the step's start with friction, and if a pair acted or began
     inside the layer, a pass from the geometry at its end over the pairs that can still
@@ -624,7 +721,7 @@ def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges
     s.xs[:] = x
     s.vs[:] = v
     acted = respond_boxes(pairs, nc, s.x0, x, v, ob, meta, data, contact, faces, edges,
-                          box_edges, dt, 0.0, 1.0, True, True, s, mass, th, sep, slack,
+                          sh, dt, 0.0, 1.0, True, True, s, mass, th, sep, slack,
                           forces)
     inside = False
     for p in range(nc):
@@ -635,7 +732,7 @@ def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges
         s.xe[:] = x
         m = _within(pairs, nc, ob, dt, th + slack + _largest_motion(x, s.x0), late)
         acted += respond_boxes(late, m, s.xe, x, v, ob, meta, data, contact, faces, edges,
-                               box_edges, dt, 1.0, 0.0, False, False, s, mass, th, sep,
+                               sh, dt, 1.0, 0.0, False, False, s, mass, th, sep,
                                slack, forces)
     out[0] = _ledger(x, s.xs, v, s.vs, s.v0, mass, dt) if acted > 0 else 0.0
     return acted
@@ -655,11 +752,12 @@ def fresh(x, x0, xb, skin, ob, built, move):
 
 
 class FeatureContact:
-    """The corners and edges of the boxes and cylinders among a simulator's obstacles
-    against its cloth (module docstring).
+    """The corners and edges of the boxes, cylinders and meshes with sharp edges among
+    a simulator's obstacles against its cloth (module docstring); the meshes' features
+    come through :meth:`set_shapes`.
 
     ``start()`` before a call's steps, ``begin(x, v)`` before each step,
-    ``after_step(state, control, coeff, dt)`` after it, while a box or cylinder is present
+    ``after_step(state, control, coeff, dt)`` after it, while one is present
     (:meth:`present`): the response, in place; returns the energy it removed [J].
     :attr:`forces` (obstacle rows, 6): the force and torque each box took through its
     features, the mean over the steps since ``start()``.
@@ -673,6 +771,7 @@ class FeatureContact:
         self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.edges = np.ascontiguousarray(mesh.edges, dtype=np.int64)
         self.s = Scratch.zeros(n)
+        self.sh = no_shapes()
         self.xt = np.zeros((n, 3))
         self.xb = np.zeros((n, 3))
         self.loc = np.zeros((n, 3))
@@ -694,11 +793,27 @@ class FeatureContact:
         self.p = Pairs.zeros(p)
         self.late = Pairs.zeros(p)         # the second pass's (:func:`_within`)
 
-    @staticmethod
-    def present(control) -> bool:
-        """Whether any obstacle is a box or a cylinder (else nothing to do)."""
+    def present(self, control) -> bool:
+        """Whether any obstacle is a box, a cylinder or a mesh with sharp edges (else
+        nothing to do)."""
         ob = control.obstacles
-        return bool(ob.shape[0]) and bool(np.isin(ob[:, SHAPE], FEATURED).any())
+        if not ob.shape[0]:
+            return False
+        if np.isin(ob[:, SHAPE], FEATURED).any():
+            return True
+        fm = self.sh.fmeta
+        return fm.shape[0] == ob.shape[0] and bool((fm[:, FM_NCORNER] > 0).any())
+
+    def set_shapes(self, fmeta: np.ndarray, fcorner: np.ndarray, fedge: np.ndarray) -> None:
+        """The mesh obstacles' sharp features, per obstacle row (:class:`Shapes`): after
+        any change of the obstacles (the candidate list is built again)."""
+        self.sh = Shapes(BOX_EDGES, np.ascontiguousarray(fmeta, dtype=np.float64),
+                         np.ascontiguousarray(fcorner, dtype=np.float64).reshape(-1, 3),
+                         np.ascontiguousarray(fedge, dtype=np.int64).reshape(-1, 2))
+        most = int(fmeta[:, FM_NCORNER].max()) if len(fmeta) else 0
+        if most > self.s.corners.shape[0]:
+            self.s = self.s._replace(corners=np.zeros((most, 3)))
+        self.built = None
 
     def start(self) -> None:
         self.sums[:] = 0.0
@@ -727,7 +842,7 @@ class FeatureContact:
             return 0
         gap, speed, fastest = clearance(x, v, self.edges, control.obstacles,
                                         control.sdf_meta, control.sdf_data,
-                                        float(control.contact_params[0]))
+                                        float(control.contact_params[0]), self.sh)
         self.gap = gap
         if gap <= 0.0:
             return 0
@@ -741,7 +856,8 @@ class FeatureContact:
         speed = 0.0
         ob = control.obstacles
         for k in range(ob.shape[0]):
-            if ob[k, SHAPE] in FEATURED:
+            if ob[k, SHAPE] in FEATURED or (
+                    ob[k, SHAPE] == MESH and self.sh.fmeta[k, FM_NCORNER] > 0):
                 speed = max(speed, float(ob[k, SPEED]))
         return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
 
@@ -759,7 +875,7 @@ class FeatureContact:
         self.scratch[1] = th                 # the features' own thickness (rim polygons)
         while True:
             nc = candidates(s.x0, s.x0, self.faces, self.edges, ob, th + self.skin, dt,
-                            BOX_EDGES, self.loc, s.corners, self.p.cand, self.scratch)
+                            self.sh, self.loc, s.corners, self.p.cand, self.scratch)
             if nc <= len(self.p.cand):
                 break
             self._alloc(2 * nc)
@@ -774,7 +890,7 @@ class FeatureContact:
         object)."""
         return respond_boxes(self.p, self.pairs, base, x, v, control.obstacles,
                              control.sdf_meta, control.sdf_data, control.contact,
-                             self.faces, self.edges, BOX_EDGES, dt, shift, part, first,
+                             self.faces, self.edges, self.sh, dt, shift, part, first,
                              friction, self.s, mass, th, SEP_SPEED * dt, SLACK * th,
                              self.sums)
 
@@ -795,7 +911,7 @@ class FeatureContact:
         if stages == 1:
             self.acted = respond_step(self.p, self.late, nc, s, x, v, ob, control.sdf_meta,
                                       control.sdf_data, control.contact, self.faces,
-                                      self.edges, BOX_EDGES, coeff.mass, control.pinned,
+                                      self.edges, self.sh, coeff.mass, control.pinned,
                                       dt, th, SEP_SPEED * dt, SLACK * th, self.sums,
                                       self.out)
             return float(self.out[0])

@@ -22,6 +22,8 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from . import contact as C
+from .features import FM_CORNER, FM_EDGE, FM_HI, FM_LO, FM_NCORNER, FM_NEDGE, FM_WIDTH, \
+    sharp_features
 
 __all__ = ['ObstacleSet', 'SHAPE_ARGS']
 
@@ -105,7 +107,7 @@ def _plane_quaternion(normal: np.ndarray) -> np.ndarray:
 
 class _Obstacle:
     __slots__ = ('name', 'shape', 'params', 'position', 'orientation', 'velocity',
-                 'omega', 'friction', 'field', 'mesh')
+                 'omega', 'friction', 'field', 'mesh', 'sharp')
 
     def describe(self) -> dict:
         d = {'name': self.name, 'shape': self.shape,
@@ -127,6 +129,7 @@ class ObstacleSet:
         self.table = np.zeros((0, C.WIDTH))
         self.meta = np.zeros((0, 8))
         self.data = np.zeros(0)
+        self.shapes = (np.zeros((0, FM_WIDTH)), np.zeros((0, 3)), np.zeros((0, 2), np.int64))
         self.ids: list = []              # table row -> obstacle id
 
     def __len__(self):
@@ -152,6 +155,7 @@ class ObstacleSet:
         o.omega = np.zeros(3)
         o.field = None
         o.mesh = None
+        o.sharp = None
         o.orientation = np.array([0.0, 0.0, 0.0, 1.0])
         g = geometry
         if shape == 'plane':
@@ -239,6 +243,7 @@ class ObstacleSet:
                                                       FIELD_MARGIN_CELLS * spacing)
         o.field = (origin, shape, values, spacing)
         o.mesh = (verts, faces.astype(np.int64))
+        o.sharp = sharp_features(verts, faces)     # corners and edges (:mod:`.features`)
         o.position = _vec(g.get('center', (0.0, 0.0, 0.0)), 'center')
         o.orientation = _quaternion(g.get('orientation', (0, 0, 0, 1)))
         o.params = {'triangles': len(faces), 'spacing': spacing}
@@ -325,6 +330,21 @@ class ObstacleSet:
             ids.append(oid)
         self.table = np.array(rows).reshape(-1, C.WIDTH)
         self.meta = np.array(metas, dtype=np.float64).reshape(-1, 8)
+        # the mesh obstacles' sharp corners and edges, per row (features.Shapes)
+        fmeta = np.zeros((len(rows), FM_WIDTH))
+        corners, edges = [np.zeros((0, 3))], [np.zeros((0, 2), np.int64)]
+        nc = ne = 0
+        for r, o in enumerate(self._items.values()):
+            if o.shape == 'mesh' and len(o.sharp[0]):
+                c, e = o.sharp
+                fmeta[r, [FM_CORNER, FM_NCORNER, FM_EDGE, FM_NEDGE]] = nc, len(c), ne, len(e)
+                fmeta[r, FM_LO:FM_LO + 3] = c.min(0)
+                fmeta[r, FM_HI:FM_HI + 3] = c.max(0)
+                corners.append(c)
+                edges.append(e)
+                nc += len(c)
+                ne += len(e)
+        self.shapes = (fmeta, np.concatenate(corners), np.concatenate(edges))
         self.data = np.concatenate(datas) if datas else np.zeros(0)
         self.ids = ids
 

@@ -689,6 +689,7 @@ class ClothSimulator:
     def _sync_obstacles(self) -> None:
         o = self._obstacles
         self.control = self.control.with_obstacles(o.table, o.meta, o.data)
+        self._features.set_shapes(*o.shapes)
         if not len(o):
             self.control.contact[:, :3] = 0.0
             self.control.contact[:, 3] = -1.0
