@@ -134,7 +134,8 @@ def sharp_features(verts: np.ndarray, faces: np.ndarray, angle: float = SHARP_AN
     corners."""
     verts = np.asarray(verts, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    n = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    n = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
+                 verts[faces[:, 2]] - verts[faces[:, 0]])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
     half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     owner = np.tile(np.arange(len(faces)), 3)
@@ -309,6 +310,26 @@ def _near_mesh(loc, sh, k, m, i0, i1, i2):
 
 
 @kernel(inline='always')
+def _near(loc, ob, sh, k, m, i0, i1, i2, lo, hi, x):
+    """Whether the element with vertices i0, i1, i2 (an edge repeats one; ``loc`` in row
+    k's frame) may come within ``m`` of row k's corners and edges (:func:`_near_rim`,
+    :func:`_near_mesh`, :func:`_near_features`); if so, its bounding box in the world
+    (positions ``x``) grown by m into ``lo``, ``hi``."""
+    shape = ob[k, SHAPE]
+    if shape == CYLINDER:
+        near = _near_rim(loc, ob, k, m, i0, i1, i2)
+    elif shape == MESH:
+        near = _near_mesh(loc, sh, k, m, i0, i1, i2)
+    else:
+        near = _near_features(loc, ob, k, m, i0, i1, i2)
+    if near:
+        for q in range(3):
+            lo[q] = min(x[i0, q], min(x[i1, q], x[i2, q])) - m
+            hi[q] = max(x[i0, q], max(x[i1, q], x[i2, q])) + m
+    return near
+
+
+@kernel(inline='always')
 def _window(loc, m, i0, i1, i2, nr):
     """The corners j0 .. j0 + count - 1 (mod K = ``nr``) of a rim whose angle may lie
     within the x-y rectangle of the element's vertices (cylinder-frame coordinates
@@ -394,7 +415,6 @@ def candidates(x0, x, faces, edges, ob, th, dt, sh, loc, corners, cand, out):
         if ncorner == 0:
             continue
         rim = ob[k, SHAPE] == CYLINDER
-        mesh = ob[k, SHAPE] == MESH
         nr = ncorner // 2
         margin = th + move + dt * ob[k, SPEED]
         lim2 = margin * margin
@@ -410,17 +430,8 @@ def candidates(x0, x, faces, edges, ob, th, dt, sh, loc, corners, cand, out):
             a = faces[t, 0]
             b = faces[t, 1]
             c = faces[t, 2]
-            if rim:
-                if not _near_rim(loc, ob, k, margin, a, b, c):
-                    continue
-            elif mesh:
-                if not _near_mesh(loc, sh, k, margin, a, b, c):
-                    continue
-            elif not _near_features(loc, ob, k, margin, a, b, c):
+            if not _near(loc, ob, sh, k, margin, a, b, c, lo, hi, x0):
                 continue
-            for q in range(3):
-                lo[q] = min(x0[a, q], min(x0[b, q], x0[c, q])) - margin
-                hi[q] = max(x0[a, q], max(x0[b, q], x0[c, q])) + margin
             # a box: its 8 corners; a cylinder: the window's on both rims
             j0, count = _window(loc, margin, a, b, c, nr) if rim else (0, ncorner)
             for q in range(2 * count if rim else ncorner):
@@ -438,17 +449,8 @@ def candidates(x0, x, faces, edges, ob, th, dt, sh, loc, corners, cand, out):
         for e in range(edges.shape[0]):
             a = edges[e, 0]
             b = edges[e, 1]
-            if rim:
-                if not _near_rim(loc, ob, k, margin, a, b, b):
-                    continue
-            elif mesh:
-                if not _near_mesh(loc, sh, k, margin, a, b, b):
-                    continue
-            elif not _near_features(loc, ob, k, margin, a, b, b):
+            if not _near(loc, ob, sh, k, margin, a, b, b, lo, hi, x0):
                 continue
-            for q in range(3):
-                lo[q] = min(x0[a, q], x0[b, q]) - margin
-                hi[q] = max(x0[a, q], x0[b, q]) + margin
             # a box: its 12 edges; a cylinder: the window's rim sides and side edges
             j0, count = _window(loc, margin, a, b, b, nr) if rim else (0, nedge)
             for q in range(3 * count if rim else nedge):

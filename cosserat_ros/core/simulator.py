@@ -612,9 +612,10 @@ class ClothSimulator:
     def contact_forces(self) -> Dict[int, tuple]:
         """{id: (force (3) [N], torque (3) [N m] about the obstacle's position)}: what the
         cloth exerted on each obstacle over the last step (at rest on the ground: its
-        weight). A box's corners and edges (:mod:`.features`) add the mean of what they
-        took over the steps of the last :meth:`step` call: their projection acts in the
-        steps where the cloth has sunk beyond its slack, not in every one."""
+        weight). The corners and edges of boxes, cylinders and meshes (:mod:`.features`)
+        add the mean of what they took over the steps of the last :meth:`step` call:
+        their projection acts in the steps where the cloth has sunk beyond its slack,
+        not in every one."""
         return self._obstacles.forces(self.state.x, self.control.contact,
                                       self._features.forces)
 

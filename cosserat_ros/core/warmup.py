@@ -163,7 +163,8 @@ def _compile(tiled: bool, coupled: bool):
     # self-collision's kernels (called from Python after each step: none is inlined)
     from .self_contact import warm
     warm()
-    # a box's corners and edges (also called from Python after each step)
+    # the corners and edges of boxes, cylinders and meshes (called from Python after
+    # each step)
     from .features import warm as warm_features
     warm_features()
     # what the node's commands call: the closest point of ~/point_forces, the distance
