@@ -192,7 +192,7 @@ def box_corners(ob, k, out):
                          + ob[k, ROT + 3 * r + 1] * l1 + ob[k, ROT + 3 * r + 2] * l2)
 
 
-@kernel(inline='always')
+@kernel()
 def rim_sides(r, th):
     """K, the sides of the polygon taken for a rim of radius ``r`` (:data:`RIM_SAG`)."""
     c = 1.0 - RIM_SAG * th / r
@@ -201,7 +201,7 @@ def rim_sides(r, th):
     return max(8, min(RIM_SIDES_MAX, int(math.ceil(math.pi / math.acos(c)))))
 
 
-@kernel(inline='always')
+@kernel()
 def n_features(ob, k, th, sh):
     """(corners, edges) of obstacle row k: a box 8 and 12; a cylinder, as a prism of K
     sides (:func:`rim_sides`), 2 K and 3 K (its two rims' sides, then the K edges along
@@ -253,7 +253,7 @@ def feature_corners(ob, k, th, sh, out):
                                       + ob[k, ROT + 3 * q + 2] * l2)
 
 
-@kernel(inline='always')
+@kernel()
 def edge_ends(ob, k, f, ncorner, sh):
     """The corners (c0, c1) at the ends of row k's edge f: a box's :data:`BOX_EDGES`;
     a cylinder's rim sides (f < 2 K: corner j to j + 1 round each rim), then its side
@@ -722,8 +722,14 @@ def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges
     _inverse_mass(mass, pinned, s.inv)
     s.xs[:] = x
     s.vs[:] = v
+    # the passes' shift, part and flags as values, not literals: numba compiles a callee
+    # once per distinct literal argument (respond_boxes three times, the module's cold
+    # compile 15 -> 41 s), and once for all values of the same type
+    zero = 0.0 * dt
+    one = zero + 1.0
+    yes = nc >= 0
     acted = respond_boxes(pairs, nc, s.x0, x, v, ob, meta, data, contact, faces, edges,
-                          sh, dt, 0.0, 1.0, True, True, s, mass, th, sep, slack,
+                          sh, dt, zero, one, yes, yes, s, mass, th, sep, slack,
                           forces)
     inside = False
     for p in range(nc):
@@ -734,7 +740,7 @@ def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges
         s.xe[:] = x
         m = _within(pairs, nc, ob, dt, th + slack + _largest_motion(x, s.x0), late)
         acted += respond_boxes(late, m, s.xe, x, v, ob, meta, data, contact, faces, edges,
-                               sh, dt, 1.0, 0.0, False, False, s, mass, th, sep,
+                               sh, dt, one, zero, not yes, not yes, s, mass, th, sep,
                                slack, forces)
     out[0] = _ledger(x, s.xs, v, s.vs, s.v0, mass, dt) if acted > 0 else 0.0
     return acted
