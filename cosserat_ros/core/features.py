@@ -84,8 +84,8 @@ import numpy as np
 from .compiled import kernel
 from .contact import (MU_K, PARAM, POS, ROT, SHAPE, SHAPES, SPEED, _point_velocity,
                       distance)
-from .self_contact import (SEP_SPEED, STAGE, _all_onto_obstacles, _deficit, _inverse_mass,
-                           _ledger, respond, segment_segment, set_normal)
+from .self_contact import (SEP_SPEED, STAGE, _deficit, _inverse_mass, _ledger, in_stages,
+                           respond, segment_segment, set_normal)
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
@@ -142,7 +142,7 @@ def sharp_features(verts: np.ndarray, faces: np.ndarray, angle: float = SHARP_AN
     far = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
     key = np.sort(half, axis=1)
     order = np.lexsort((key[:, 1], key[:, 0]))
-    key, owner, far, half = key[order], owner[order], far[order], half[order]
+    key, owner, far = key[order], owner[order], far[order]
     # a closed mesh: every edge twice, once each way, in consecutive rows once sorted
     same = np.all(key[0::2] == key[1::2], axis=1)
     if not same.all():
@@ -156,9 +156,9 @@ def sharp_features(verts: np.ndarray, faces: np.ndarray, angle: float = SHARP_AN
     return verts[used].copy(), inverse.reshape(-1, 2).astype(np.int64)
 
 
-def no_shapes(rows: int = 0) -> Shapes:
-    """The :class:`Shapes` of obstacle rows without mesh features."""
-    return Shapes(BOX_EDGES, np.zeros((rows, FM_WIDTH)), np.zeros((0, 3)),
+def no_shapes() -> Shapes:
+    """The :class:`Shapes` of no obstacle rows (until :meth:`FeatureContact.set_shapes`)."""
+    return Shapes(BOX_EDGES, np.zeros((0, FM_WIDTH)), np.zeros((0, 3)),
                   np.zeros((0, 2), np.int64))
 
 #: a pair short of its target by less than this fraction of th counts as satisfied. Ten
@@ -576,8 +576,9 @@ def _impulse(x, v, v_before, c_before, contact, mass, dt, ob, k, out):
 
 @kernel()
 def clearance(x, v, edges, ob, meta, data, th, sh):
-    """(how far every box is from the cloth beyond its longest edge plus ``th`` [m],
-    the fastest any box's surface moves [m/s], the fastest vertex [m/s]):
+    """(how far every obstacle with corners and edges is from the cloth beyond its
+    longest edge plus ``th`` [m], the fastest any such obstacle's surface moves [m/s],
+    the fastest vertex [m/s]):
     :meth:`FeatureContact.free_steps`."""
     fastest = 0.0
     for i in range(x.shape[0]):
@@ -804,13 +805,16 @@ class FeatureContact:
     def present(self, control) -> bool:
         """Whether any obstacle is a box, a cylinder or a mesh with sharp edges (else
         nothing to do)."""
-        ob = control.obstacles
-        if not ob.shape[0]:
-            return False
-        if np.isin(ob[:, SHAPE], FEATURED).any():
-            return True
+        return bool(self._featured(control.obstacles).any())
+
+    def _featured(self, ob: np.ndarray) -> np.ndarray:
+        """Which obstacle rows have corners and edges (:func:`n_features` > 0): boxes,
+        cylinders, meshes with sharp edges."""
+        rows = np.isin(ob[:, SHAPE], FEATURED)
         fm = self.sh.fmeta
-        return fm.shape[0] == ob.shape[0] and bool((fm[:, FM_NCORNER] > 0).any())
+        if fm.shape[0] == ob.shape[0]:
+            rows |= (ob[:, SHAPE] == MESH) & (fm[:, FM_NCORNER] > 0)
+        return rows
 
     def set_shapes(self, fmeta: np.ndarray, fcorner: np.ndarray, fedge: np.ndarray) -> None:
         """The mesh obstacles' sharp features, per obstacle row (:class:`Shapes`): after
@@ -861,12 +865,8 @@ class FeatureContact:
         """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
         vertex, together with a box's surface, further than the gap it was given (then
         it must be stepped again one step per call, with the response)."""
-        speed = 0.0
         ob = control.obstacles
-        for k in range(ob.shape[0]):
-            if ob[k, SHAPE] in FEATURED or (
-                    ob[k, SHAPE] == MESH and self.sh.fmeta[k, FM_NCORNER] > 0):
-                speed = max(speed, float(ob[k, SPEED]))
+        speed = float(ob[self._featured(ob), SPEED].max(initial=0.0))
         return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
 
     def _candidates(self, x, ob, th, dt) -> None:
@@ -929,17 +929,11 @@ class FeatureContact:
         _inverse_mass(coeff.mass, control.pinned, s.inv)
         s.xs[:] = x
         s.vs[:] = v
-        self.xt[:] = x
-        x[:] = s.x0
-        acted = 0
-        for j in range(stages):
-            start = s.x0 if j == 0 else s.xe
-            s.xe[:] = x
-            x += (self.xt - s.x0) / stages
-            acted += self._pass(start, x, v, control, coeff.mass, th, dt, j / stages,
-                                1.0 / stages, j == 0, True)
-        _all_onto_obstacles(x, v, dt, s.inv, coeff.mass, ob, control.sdf_meta,
-                            control.sdf_data, th, control.contact)
+        acted = in_stages(x, v, s.x0, s.xe, self.xt, stages,
+                          lambda start, j: self._pass(start, x, v, control, coeff.mass, th,
+                                                      dt, j / stages, 1.0 / stages,
+                                                      j == 0, True),
+                          s.inv, coeff.mass, control, th, dt)
         if acted > 0 or self.p.g0[:nc].min() < th:
             s.xe[:] = x
             acted += self._pass(s.xe, x, v, control, coeff.mass, th, dt, 1.0, 0.0, False,

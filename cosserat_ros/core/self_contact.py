@@ -674,6 +674,29 @@ def _ledger(x, xs, v, vs, v0, mass, dt):
     return out
 
 
+def in_stages(x, v, x0, xe, xt, stages, answer, inv, mass, control, th, dt):
+    """The response to a step from ``x0`` to ``x`` whose relative motion exceeds
+    :data:`STAGE` th, in ``stages`` equal parts of the solver's displacement, each
+    answered by ``answer(start, j)`` linearised where the last one ended (``start``:
+    ``x0`` for the first, then ``xe``; ``xt``: room for where the solver took the
+    cloth); x and v in place. Returns the sum of what the answers returned (the pairs
+    that acted). A vertex pushed towards an obstacle in an early stage went on along
+    the solver's path, which ended on the contact layer: it is put back onto it. Used
+    by self-collision and by the obstacles' corners and edges (:mod:`.features`)."""
+    xt[:] = x
+    x[:] = x0
+    acted = 0
+    for j in range(stages):
+        start = x0 if j == 0 else xe
+        xe[:] = x
+        x += (xt - x0) / stages
+        acted += answer(start, j)
+    if control.obstacles.shape[0] > 0:
+        _all_onto_obstacles(x, v, dt, inv, mass, control.obstacles, control.sdf_meta,
+                            control.sdf_data, th, control.contact)
+    return acted
+
+
 class SelfCollision:
     """The self-collision of one simulator's cloth (module docstring).
 
@@ -760,24 +783,13 @@ class SelfCollision:
                 self.stats)
 
     def _staged(self, x, v, control, mass, th, dt, stages) -> None:
-        """The response to a step whose relative motion exceeds :data:`STAGE` th, in
-        ``stages`` equal parts of the solver's displacement, each linearised where the
-        last one ended (module docstring)."""
-        self.xt[:] = x                               # where the solver took the cloth
-        x[:] = self.x0
-        acted = 0.0
-        for j in range(stages):
-            start = self.x0 if j == 0 else self.xe
-            self.xe[:] = x
-            x += (self.xt - self.x0) / stages
+        """The response to a step whose relative motion exceeds :data:`STAGE` th
+        (:func:`in_stages`)."""
+        def answer(start, j):
             self._respond(start, x, v, control, mass, th, self.friction, dt)
-            acted += self.stats[0]
-        self.stats[0] = acted
-        # a vertex pushed towards an obstacle in an early stage went on along the
-        # solver's path, which ended on the contact layer: back onto it
-        if control.obstacles.shape[0] > 0:
-            _all_onto_obstacles(x, v, dt, self.inv, mass, control.obstacles,
-                                control.sdf_meta, control.sdf_data, th, control.contact)
+            return self.stats[0]
+        self.stats[0] = in_stages(x, v, self.x0, self.xe, self.xt, stages, answer,
+                                  self.inv, mass, control, th, dt)
 
     def after_step(self, state, control, coeff, dt: float) -> float:
         th = float(control.contact_params[0])
