@@ -126,7 +126,7 @@ def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
     otherwise reach last. Then remove the lock file ``lock`` that :func:`start` took; also
     when SIGTERM ends it (its parent ended), so the next start can warm up again.
     ``parent``: the pid of the process that started it; gone already: nothing to do."""
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
+    signal.signal(signal.SIGTERM, lambda *_: _end(lock))
     try:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
         if parent is not None and os.getppid() != parent:
@@ -136,6 +136,20 @@ def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
         if lock is not None and os.path.exists(lock):
             os.remove(lock)
     return 0
+
+
+def _end(lock: Optional[str]) -> None:
+    """SIGTERM's handler: remove the lock and end the process at once. Not by raising
+    SystemExit: a signal handler runs wherever the interpreter is, and an exception it
+    raises inside a ``__del__`` or a weakref callback (llvmlite disposes of its objects in
+    those while numba compiles) is printed and dropped, and the compile went on (a
+    warm-up outlived its killed parent by more than 30 s in CI)."""
+    if lock is not None:
+        try:
+            os.remove(lock)
+        except OSError:
+            pass
+    os._exit(1)
 
 
 #: a closed mesh of four faces (vertices, faces): compiles the mesh distance field cheaply
