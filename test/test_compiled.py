@@ -180,3 +180,47 @@ def test_unwritable_cache_is_left_alone(tmp_path):
     (tmp_path / '__pycache__').write_text('not a directory')   # cannot hold a cache
     assert not compiled.invalidate_stale_cache(str(tmp_path))
     assert (tmp_path / '__pycache__').read_text() == 'not a directory'
+
+
+_REFCOUNT = """
+import numba as nb
+import numpy as np
+from cosserat_ros.core.solvers import update
+from cosserat_ros.mesh import grid_mesh
+from cosserat_ros.simulator import ClothSimulator, Material
+s = ClothSimulator(grid_mesh(3, 3), Material(zeta=50.0, xi=2e-5, phi=0.0, density=0.2),
+                   dt=1e-5, check_dt=False)
+s.add_obstacle('plane')
+args = (np.int64(0), np.int64(4), s.state.x, s.state.v, s.control, s.coefficients, s.dt)
+counted = nb.njit(error_model='numpy')(update.contact_range.py_func)
+for k in (update.contact_range, counted):
+    k(*args)
+    ir = k.inspect_llvm(k.signatures[0])
+    print(ir.count('call void @NRT_incref') + ir.count('call void @NRT_decref'))
+"""
+
+
+def test_refcount_false_compiles_without_reference_counting(tmp_path):
+    # kernel(refcount=False) maps to numba's private _nrt=False (numba is pinned): the
+    # contact pass, compiled into an empty cache, has no reference counting in its code;
+    # the same function compiled the default way increments and decrements its arrays'
+    # counts around every vertex. A numba that dropped or renamed the option fails here.
+    (tmp_path / 'refcount.py').write_text(_REFCOUNT)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
+    out = subprocess.run([sys.executable, 'refcount.py'], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    without, counted = (int(w) for w in out.stdout.split())
+    assert without == 0 and counted > 0
+
+
+def test_the_per_vertex_kernels_count_no_references():
+    # the kernels called once per vertex, pair, tile or lane group from the step's loops
+    from cosserat_ros.core import contact
+    from cosserat_ros.core.solvers import update
+    from cosserat_ros.core.terms import jet
+    from cosserat_ros.fast import lanes, step
+    for k in (update.contact_range, update.contact_list, contact.resolve, contact.push_out,
+              contact.distance, step._gather_update, lanes._coupling_group,
+              lanes.vertex_chunk, jet.vertex_range, jet.normal_jet, jet.weighted_offsets):
+        assert k.targetoptions.get('_nrt') is False, k

@@ -53,10 +53,21 @@ STRICT = frozenset({'contract'})
 REDUCTION = frozenset({'contract', 'reassoc'})
 
 
-def kernel(**options):
+def kernel(refcount: bool = True, **options):
     """``numba.njit`` with the options above; ``options`` adds ``parallel``, ``inline``
-    (numba IR), ``forceinline`` (LLVM) or replaces ``fastmath`` (:data:`REDUCTION`)."""
+    (numba IR), ``forceinline`` (LLVM) or replaces ``fastmath`` (:data:`REDUCTION`).
+
+    ``refcount=False`` compiles without numba's reference counting (its private
+    ``_nrt=False``, numba is pinned), for the small kernels called once per vertex that
+    allocate nothing (a compile error says so if one does). With it, every call
+    increments and decrements the count of each array argument, an atomic operation on a
+    count that both threads share, and numba does not remove the pairs around a call:
+    the contact pass (``solvers/update.py``) spent 261 ns a vertex, 67 ns without them
+    (docs/performance.md). The caller holds references to every array for the call's
+    duration, so none is freed under it."""
     options['fastmath'] = set(options.get('fastmath', STRICT))
+    if not refcount:
+        options['_nrt'] = False
     return nb.njit(cache=True, error_model='numpy', **options)
 
 

@@ -105,7 +105,7 @@ def rotation_matrix(q) -> np.ndarray:
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-@kernel()
+@kernel(refcount=False)
 def _field(meta, data, k, p0, p1, p2):
     """Trilinear interpolation of mesh field ``k`` at local point p: (d, gradient)."""
     off = int(meta[k, 0])
@@ -151,7 +151,7 @@ def _field(meta, data, k, p0, p1, p2):
     return d, ddx, ddy, ddz
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def _local(ob, k, x0, x1, x2):
     """The point in obstacle k's frame: p = R^T (x - c)."""
     r0 = x0 - ob[k, POS]
@@ -163,12 +163,12 @@ def _local(ob, k, x0, x1, x2):
     return p0, p1, p2
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def _sign(a):
     return 1.0 if a >= 0.0 else -1.0
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def distance(ob, meta, data, k, x0, x1, x2):
     """Signed distance [m] of world point x from obstacle k's surface and the outward
     unit normal in the world frame (module docstring): (d, n0, n1, n2)."""
@@ -254,7 +254,7 @@ def distance(ob, meta, data, k, x0, x1, x2):
     return d, n0, n1, n2
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def _point_velocity(ob, k, x0, x1, x2):
     """The obstacle's velocity at world point x: v_lin + w x (x - c)."""
     r0 = x0 - ob[k, POS]
@@ -281,7 +281,7 @@ def _far(ob, k, x0, x1, x2, margin):
     return r0 * r0 + r1 * r1 + r2 * r2 > lim * lim
 
 
-@kernel()
+@kernel(refcount=False)
 def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     """The contact response of vertex i (module docstring) at old position x for its new
     velocity v (before the position update), with obstacles ``ob`` (their fields
@@ -350,7 +350,7 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     return v0, v1, v2, work, diss
 
 
-@kernel()
+@kernel(refcount=False)
 def push_out(x0, x1, x2, ob, meta, data, th):
     """A vertex just moved to x, put back on the contact layer of every obstacle it is
     inside (along the normal; no velocity change): the corrected (x0, x1, x2)."""
@@ -378,7 +378,7 @@ def distances(ob, meta, data, k, pts):
     return out
 
 
-@kernel()
+@kernel(refcount=False)
 def _point_triangle(p0, p1, p2, a, b, c):
     """Distance from point p to triangle (a, b, c)
     (:func:`.surface_query.point_triangle_sq`)."""

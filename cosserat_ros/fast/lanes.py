@@ -203,7 +203,7 @@ def _spoke_lanes(sc, d, ea, eb, ec, ed):
             vset(scf[oa + 2 * W], scf[ob + 2 * W], scf[oc + 2 * W], scf[od + 2 * W]))
 
 
-@kernel()
+@kernel(refcount=False)
 def _coupling_group(i0, i1, i2, i3, mode, vf_ptr, sp_P, sp_entry, sp_ebar0, A, cs11, cs12, cs22,
                     sc, r0, W):
     """The coupling of the four lanes at once (:func:`spokes`): epsbar (three vectors)
@@ -507,7 +507,7 @@ def vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, sta
         vstore(contrib, 2 * K + b, c0w * j12 + c1w * j22 - hs * n2)
 
 
-@kernel(forceinline=True)
+@kernel(refcount=False, forceinline=True)
 def vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, st_idx, st_w,
                  st_uv, st_sigma, sp_P, sp_entry, sp_ebar0, stab, dual_area, ainv, rest_b, xi,
                  phi, scratch, contrib, corners, dinv, face_area, K_face, vf_ptr, vf_face,

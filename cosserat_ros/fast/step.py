@@ -350,7 +350,7 @@ def elastic_forces_coupled(x, coeff, faces, vf, vertices, tr_ptr, lanes, plan, w
     gather_forces(vf.ptr, plan.vf_row, work.fgrad, tr_ptr, plan.tr_slot, work.contrib, force)
 
 
-@kernel()
+@kernel(refcount=False)
 def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contrib, x, v,
                    force, control, coeff, dt, vmax2):
     """Gather (force = -dE/dx) and update (Eq. 29) the vertices ``gl_vert[q0:q1]`` one after

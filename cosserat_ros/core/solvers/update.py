@@ -127,7 +127,7 @@ def contact_vertex(i, x, v, control, coeff, dt):
     return w, d
 
 
-@kernel()
+@kernel(refcount=False)
 def contact_range(i0, i1, x, v, control, coeff, dt):
     """:func:`contact_vertex` for vertices i0..i1-1; returns (work, dissipation)."""
     w = 0.0
@@ -139,7 +139,7 @@ def contact_range(i0, i1, x, v, control, coeff, dt):
     return w, d
 
 
-@kernel()
+@kernel(refcount=False)
 def contact_list(verts, q0, q1, x, v, control, coeff, dt):
     """:func:`contact_vertex` for vertices ``verts[q0:q1]``; returns (work, dissipation)."""
     w = 0.0

@@ -67,7 +67,7 @@ def phi_dot(u, v, q0, q1, q2, q3, q4, q5, q6, q7, q8):
 # ``reassoc`` (compiled.REDUCTION) and not inlined by numba, so that their sums over the
 # stencil run as SIMD vectors while the rest of the step keeps the strict order.
 
-@kernel(fastmath=REDUCTION)
+@kernel(refcount=False, fastmath=REDUCTION)
 def normal_jet(ns, p0, st_w, scratch, ch, n0, n1, n2):
     """DN_k = d_k . n and q_c = sum_k W_kc DN_k for c = r_11 ... r_222 (Eq. 11)."""
     p0 = max(p0, 0)
@@ -92,7 +92,7 @@ def normal_jet(ns, p0, st_w, scratch, ch, n0, n1, n2):
     return q2, q3, q4, q5, q6, q7, q8
 
 
-@kernel(fastmath=REDUCTION)
+@kernel(refcount=False, fastmath=REDUCTION)
 def weighted_offsets(ns, scratch, ch):
     """V = sum_k h_k d_k and sum_k h_k."""
     v0 = 0.0
@@ -221,7 +221,7 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
     return k11, k12, k22, om * e
 
 
-@kernel()
+@kernel(refcount=False)
 def vertex_range(i0, i1, st_ptr, st_wptr, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area,
                  ainv, rest_b, xi, phi, epsbar, sc, ch, contrib, kap, estab, adjoint):
     """:func:`jet_adjoint` for the vertices i0:i1 with scratch row ``ch`` (CSR layout,
