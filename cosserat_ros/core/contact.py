@@ -300,9 +300,9 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     gap = FAR
     work = 0.0
     diss = 0.0
-    s2 = v0 * v0 + v1 * v1 + v2 * v2
+    speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     for k in range(ob.shape[0]):
-        if _far(ob, k, x0, x1, x2, th + dt * (math.sqrt(s2) + ob[k, SPEED])):
+        if _far(ob, k, x0, x1, x2, th + dt * (speed + ob[k, SPEED])):
             continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
         gap = min(gap, d - th)
