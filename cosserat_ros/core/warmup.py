@@ -123,7 +123,9 @@ def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
     energy report, and for the tiled step the critical dt's force (the two-pass vertex
     pass, which the tiled step does not share); where the one-region step does not apply
     (more threads than CPUs) the two-pass step's update pass, which its compile would
-    otherwise reach last. Then remove the lock file ``lock`` that :func:`start` took; also
+    otherwise reach last; first what the node needs first, then what its commands and
+    other configs need (the energy report had come after those, and the node of
+    config/cloth.yaml, needing none of them, compiled it itself). Then remove the lock file ``lock`` that :func:`start` took; also
     when SIGTERM ends it (its parent ended), so the next start can warm up again.
     ``parent``: the pid of the process that started it; gone already: nothing to do."""
     signal.signal(signal.SIGTERM, lambda *_: _end(lock))
@@ -171,22 +173,6 @@ def _compile(tiled: bool, coupled: bool):
     from .solvers.update import contact_range
     contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v, sim.control,
                   sim.coefficients, sim.dt)
-    # the implicit solver's contact kernels (the rest of that solver is the step's force)
-    from .solvers.implicit_contact import warm as warm_implicit_contact
-    warm_implicit_contact(sim.state.x, sim.control)
-    # self-collision's kernels (called from Python after each step: none is inlined)
-    from .self_contact import warm
-    warm()
-    # the corners and edges of boxes, cylinders and meshes (called from Python after
-    # each step)
-    from .features import warm as warm_features
-    warm_features()
-    # what the node's commands call: the closest point of ~/point_forces, the distance
-    # field of a mesh obstacle from ~/obstacles
-    from .contact import mesh_distance_field
-    from .surface_query import closest_points
-    closest_points(sim.state.x, sim.model.mesh.faces, np.zeros((1, 3)))
-    mesh_distance_field(*TETRAHEDRON, 0.25, 0.1)
     # the report's own kernels (its internal force is the step's, which the node compiles)
     energy.report(sim.model, sim.coefficients, sim.state, sim.control, sim.dt, sim._scratch,
                   np.zeros((sim.n_vertices, 3)))
@@ -199,6 +185,21 @@ def _compile(tiled: bool, coupled: bool):
         fast_step.integrate(m.jets.tr_ptr, m.vertex_faces.ptr, s.plan, s.work,
                             sim.state.x.copy(), sim.state.v.copy(), sim.control,
                             sim.coefficients, sim.dt, 1.0, np.zeros(2))
+    # then, while the node steps, what its commands call (the closest point of
+    # ~/point_forces, the distance field of a mesh obstacle from ~/obstacles) and what
+    # only some configs need: the implicit solver's contact kernels (the rest of that
+    # solver is the step's force), self-collision's kernels and the corners and edges of
+    # boxes, cylinders and meshes (both called from Python after each step)
+    from .contact import mesh_distance_field
+    from .surface_query import closest_points
+    closest_points(sim.state.x, sim.model.mesh.faces, np.zeros((1, 3)))
+    mesh_distance_field(*TETRAHEDRON, 0.25, 0.1)
+    from .solvers.implicit_contact import warm as warm_implicit_contact
+    warm_implicit_contact(sim.state.x, sim.control)
+    from .self_contact import warm
+    warm()
+    from .features import warm as warm_features
+    warm_features()
 
 
 if __name__ == '__main__':
