@@ -59,12 +59,13 @@ def kernel(refcount: bool = True, **options):
 
     ``refcount=False`` compiles without numba's reference counting (its private
     ``_nrt=False``, numba is pinned), for the small kernels called once per vertex that
-    allocate nothing (a compile error says so if one does). With it, every call
+    allocate nothing (a compile error says so if one does) and return no array (a
+    counting caller would release one it was never given). With counting, every call
     increments and decrements the count of each array argument, an atomic operation on a
-    count that both threads share, and numba does not remove the pairs around a call:
-    the contact pass (``solvers/update.py``) spent 261 ns a vertex, 67 ns without them
-    (docs/performance.md). The caller holds references to every array for the call's
-    duration, so none is freed under it."""
+    count that both threads share, and numba does not remove the pairs around a call
+    (what that cost the contact pass and the tiled step: docs/performance.md). The
+    caller holds references to every array for the call's duration, so none is freed
+    under it."""
     options['fastmath'] = set(options.get('fastmath', STRICT))
     if not refcount:
         options['_nrt'] = False

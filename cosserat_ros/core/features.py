@@ -70,7 +70,7 @@ bounding box must meet the box round its sharp corners, and each corner and edge
 then tested after a bounding-box check. A pair is kept if its
 distance at the start is below ``th + m``, and the list is kept over steps (a Verlet
 list, :class:`FeatureContact`). The cost is a few comparisons per element and obstacle,
-and only with a box or a cylinder present.
+and only with a box, a cylinder or a mesh with sharp edges present.
 
 This module imports no ROS package.
 """
@@ -724,8 +724,8 @@ def respond_step(pairs, late, nc, s, x, v, ob, meta, data, contact, faces, edges
     s.xs[:] = x
     s.vs[:] = v
     # the passes' shift, part and flags as values, not literals: numba compiles a callee
-    # once per distinct literal argument (respond_boxes three times, the module's cold
-    # compile 15 -> 41 s), and once for all values of the same type
+    # once per distinct literal argument (respond_boxes three times: docs/performance.md),
+    # and once for all values of the same type
     zero = 0.0 * dt
     one = zero + 1.0
     yes = nc >= 0
@@ -768,7 +768,7 @@ class FeatureContact:
     ``start()`` before a call's steps, ``begin(x, v)`` before each step,
     ``after_step(state, control, coeff, dt)`` after it, while one is present
     (:meth:`present`): the response, in place; returns the energy it removed [J].
-    :attr:`forces` (obstacle rows, 6): the force and torque each box took through its
+    :attr:`forces` (obstacle rows, 6): the force and torque each obstacle took through its
     features, the mean over the steps since ``start()``.
 
     The candidate pairs are a Verlet list: found within ``th + skin`` where a step
@@ -863,8 +863,9 @@ class FeatureContact:
     def overran(self, x_start: np.ndarray, x: np.ndarray, control, dt: float,
                 steps: int) -> bool:
         """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
-        vertex, together with a box's surface, further than the gap it was given (then
-        it must be stepped again one step per call, with the response)."""
+        vertex, together with the surface of an obstacle with features, further than the
+        gap it was given (then it must be stepped again one step per call, with the
+        response)."""
         ob = control.obstacles
         speed = float(ob[self._featured(ob), SPEED].max(initial=0.0))
         return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
