@@ -5,7 +5,7 @@ On a cold compile cache most of the suite's time is numba compiling the step's k
 one core at a time. The session therefore starts ``precompile.py`` in a second process
 and runs first the modules that step no cloth (meshes, messages, terms, the integrator,
 geometry), so that the other core compiles the steps meanwhile (a warm cache: it loads
-them in a few seconds and ends)."""
+them in a few seconds and ends), and the warm-up's tests last."""
 import os
 import subprocess
 import sys
@@ -17,6 +17,9 @@ os.environ.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
 #: the modules that step no cloth, run first in this order; the rest keep pytest's order
 FIRST = ('test_mesh.py', 'test_messages.py', 'test_terms.py', 'test_integrator.py',
          'test_geometry.py')
+#: ... and last: the warm-up's tests load every kernel the warm-up and the node's start-up
+#: ask for, which the other modules (and precompile.py) have compiled by then
+LAST = ('test_compiled.py',)
 
 _precompile = None
 
@@ -36,6 +39,8 @@ def pytest_sessionstart(session):
 def pytest_collection_modifyitems(session, config, items):
     def rank(item):
         name = os.path.basename(str(item.fspath))
+        if name in LAST:
+            return len(FIRST) + 1 + LAST.index(name)
         return FIRST.index(name) if name in FIRST else len(FIRST)
     items.sort(key=rank)                  # stable: pytest's order within each rank
 
