@@ -127,6 +127,50 @@ def test_switches_and_their_checks():
     assert sim.self_friction == 0.8 and sim.self_collision
 
 
+def test_a_cloth_that_cannot_touch_itself_steps_many_steps_per_call():
+    # a flat cloth lying on the ground has no pair near: the steps go in calls of many
+    # (no response after each) and end where the same cloth without self-collision ends,
+    # to the bit
+    sims = []
+    for on in (False, True):
+        sim = _sim(12, 12, 0.4, 0.4)
+        sim.set_positions(sim.mesh.vertices + [0.0, 0.0, 0.01])
+        sim.add_obstacle('plane')
+        sim.self_collision = on
+        sims.append(sim)
+    calls = []
+    step = sims[1].solver.step
+    sims[1].solver.step = lambda k, *a: calls.append(k) or step(k, *a)
+    for sim in sims:
+        sim.step(400)
+    assert np.array_equal(sims[0].state.x, sims[1].state.x)
+    assert np.array_equal(sims[0].state.v, sims[1].state.v)
+    assert sum(calls) == 400 and len(calls) < 40, calls
+
+
+def test_a_call_that_moves_further_than_its_room_is_an_overrun():
+    sim = _sim(8, 8, 0.3, 0.3)
+    sim.step(1)                                        # the first list
+    own = sim._self
+    x, v = sim.state.x.copy(), sim.state.v.copy()
+    th = sim.contact_thickness
+    free = own.free_steps(x, v, th, sim.dt)
+    # the list's skin bounds the room: half the skin at most, and a fast cloth
+    # (FREE_SPEED at the least) takes fewer steps
+    assert 0.0 < own.room <= 0.5 * own.skin and free >= 2
+    assert free <= 0.5 * own.room / (SC.FREE_SPEED * sim.dt) + 1
+    moved = x.copy()
+    moved[0] += [0.0, 0.0, 0.9 * own.room]
+    assert not own.overran(x, moved)
+    moved[0] += [0.0, 0.0, 0.2 * own.room]
+    assert own.overran(x, moved)
+    # a rigid translation moves no vertex relative to the others
+    assert not own.overran(x, x + [0.0, 0.0, 10.0 * own.room])
+    # a pair near: one step per call
+    own.nlive = 1
+    assert own.free_steps(x, v, th, sim.dt) == 0
+
+
 # ---------------------------------------------------------------- scenes
 
 @pytest.mark.parametrize('solver', ['explicit', 'implicit'])

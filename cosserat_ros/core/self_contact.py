@@ -52,7 +52,10 @@ acted or began the step within ``th``, the response therefore runs once more fro
 exact geometry at the step's end (closest points and normals there; friction already
 applied), against the same targets, which every pass takes from the pair's distance
 where the step began: a pair that began outside the layer ends on it, not inside by the
-drift, and one that began inside ends no closer than it began.
+drift, and one that began inside ends no closer than it began. Only when that drift can
+exceed the slack (:func:`drifts`: the step's relative motion above about th sqrt(SLACK /
+8)); a layer at rest on another or sliding slowly over it, whose gap the first pass
+holds to within the slack, skips it (half the cost of a folded cloth's response).
 
 Energy: the response removes the energy :func:`_ledger` measures (kinetic, and the
 potential change over its displacement), counted as dissipation in ``State.acc``.
@@ -122,6 +125,9 @@ SKIN_EDGE = 0.25
 #: half this many such steps before the next build (at most a mean edge long, or 2.5
 #: steps' motion)
 STEPS_PER_BUILD = 16.0
+#: [m/s] the relative speed a cloth is assumed to have at least when the steps it can
+#: take without a response are counted (:meth:`SelfCollision.free_steps`)
+FREE_SPEED = 0.25
 
 
 @kernel(inline='always')
@@ -129,7 +135,7 @@ def _clamp01(a):
     return min(max(a, 0.0), 1.0)
 
 
-@kernel()
+@kernel(refcount=False)
 def segment_segment(p0, p1, q0, q1):
     """Parameters (s, t) of the closest points ``p0 + s (p1 - p0)`` and ``q0 + t (q1 -
     q0)`` of two segments (Ericson, Real-Time Collision Detection, 5.1.9), and their
@@ -352,6 +358,10 @@ def _target(d, th, sep):
     return th if d >= th else d + min(th - d, sep + SLACK * th)
 
 
+#: pairs per task of :func:`_pair_geometry`'s parallel loop
+PAIR_CHUNK = 256
+
+
 @kernel(parallel=True)
 def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd, go, g0,
                    first, th, sep, flag):
@@ -363,8 +373,19 @@ def _pair_geometry(x0, x, faces, edges, vt, nvt, ee, live, nlive, gi, gw, gn, gd
     turned towards A's side; if that too is undefined it gets weight 0 (skipped).
     ``first``: x0 is where the step began, and g0 (each pair's distance there, which
     sets its target: :func:`_deficit`) takes gd. flag[p]: 1 if the pair is short of its
-    target at the step's end x (:func:`_short`)."""
-    for p in nb.prange(nlive):
+    target at the step's end x (:func:`_short`). In chunks of :data:`PAIR_CHUNK` pairs
+    (:func:`_pair_range`: the arrays' reference counts change once a chunk)."""
+    for c in nb.prange((nlive + PAIR_CHUNK - 1) // PAIR_CHUNK):
+        _pair_range(c * PAIR_CHUNK, min(nlive, (c + 1) * PAIR_CHUNK), x0, x, faces, edges,
+                    vt, nvt, ee, live, gi, gw, gn, gd, go, g0, first, th, sep, flag)
+
+
+@kernel(refcount=False)
+def _pair_range(lo, hi, x0, x, faces, edges, vt, nvt, ee, live, gi, gw, gn, gd, go, g0,
+                first, th, sep, flag):
+    """:func:`_pair_geometry` for the live pairs lo..hi-1, without reference counting
+    (:func:`.compiled.kernel`: the rows of x0 it passes on are views)."""
+    for p in range(lo, hi):
         cand = live[p]
         if cand < nvt:
             i = vt[cand, 0]
@@ -446,7 +467,7 @@ def set_normal(p, r0, r1, r2, f0, f1, f2, gw, gn, gd, g0, first):
         g0[p] = d
 
 
-@kernel()
+@kernel(refcount=False)
 def _short(x, x0, gi, gw, gn, gd, go, g0, npair, th, sep, slack, flag):
     """flag[p] = 1 for every pair short of its target by more than ``slack`` [m];
     returns how many."""
@@ -469,7 +490,7 @@ def _kick(j, x, v, dt, c0, c1, c2):
     v[j, 2] += c2 / dt
 
 
-@kernel()
+@kernel(refcount=False)
 def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
     """Vertex j, just moved by the response, back onto the contact layer of every
     obstacle it entered (position and velocity, as an impulse of the obstacle: its force
@@ -495,7 +516,7 @@ def _all_onto_obstacles(x, v, dt, inv, mass, ob, meta, data, th, contact):
             _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact)
 
 
-@kernel()
+@kernel(refcount=False)
 def _project(p, x, x0, v, inv, mass, gi, gw, gn, gd, go, g0, th, sep, slack, mu, dt, ob,
              meta, data, contact):
     """The impulse of pair p (module docstring) if it is short of its target; returns 1
@@ -549,7 +570,7 @@ def _inverse_mass(mass, pinned, inv):
         inv[i] = 0.0 if pinned[i] else 1.0 / mass[i]
 
 
-@kernel()
+@kernel(refcount=False)
 def respond(x, x0, v, inv, mass, gi, gw, gn, gd, go, g0, npair, th, mu, dt, sep, slack,
             flag, active, ob, meta, data, contact, stats):
     """The response of the module docstring over the live pairs' constraints (from
@@ -654,6 +675,50 @@ def _select(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, step, reach, li
 
 
 @kernel()
+def _room(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, half_skin):
+    """How far every vertex may still move relative to the others [m] before some
+    candidate pair could come within ``th`` or the list could miss a pair: the least of
+    ``half_skin`` less the largest ``moved`` (the list's own bound: module docstring) and,
+    over the candidates, half of their distance at the build less ``th`` and less how
+    far each side's vertices have moved since (``moved``: :func:`_displacement`)."""
+    out = half_skin
+    for i in range(moved.shape[0]):
+        out = min(out, half_skin - moved[i])
+    for p in range(nvt):
+        t = vt[p, 1]
+        r = moved[vt[p, 0]] + max(moved[faces[t, 0]], moved[faces[t, 1]], moved[faces[t, 2]])
+        out = min(out, 0.5 * (vtd[p] - th - r))
+    for q in range(nee):
+        e = ee[q, 0]
+        f = ee[q, 1]
+        r = (max(moved[edges[e, 0]], moved[edges[e, 1]])
+             + max(moved[edges[f, 0]], moved[edges[f, 1]]))
+        out = min(out, 0.5 * (eed[q] - th - r))
+    return out
+
+
+@kernel()
+def _relative_speed(v):
+    """max_i |v_i - mean_j v_j| [m/s]: the fastest vertex relative to the cloth's mean
+    motion (a rigid translation brings no pair closer)."""
+    n = v.shape[0]
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    for i in range(n):
+        c0 += v[i, 0]
+        c1 += v[i, 1]
+        c2 += v[i, 2]
+    c0 /= n
+    c1 /= n
+    c2 /= n
+    out = 0.0
+    for i in range(n):
+        out = max(out, (v[i, 0] - c0) ** 2 + (v[i, 1] - c1) ** 2 + (v[i, 2] - c2) ** 2)
+    return math.sqrt(out)
+
+
+@kernel()
 def _ledger(x, xs, v, vs, v0, mass, dt):
     """The energy the response removed [J]: minus the change of kinetic energy and of
     potential energy, the latter as minus the work of the step's force ``f_i = m_i (vs_i
@@ -672,6 +737,16 @@ def _ledger(x, xs, v, vs, v0, mass, dt):
             out -= 0.5 * m * (v[i, k] * v[i, k] - vs[i, k] * vs[i, k])
             out += 0.5 * m * (vs[i, k] - v0[i, k]) / dt * c
     return out
+
+
+def drifts(step: float, th: float) -> bool:
+    """Whether a step whose relative motion is ``step`` [m] (the most any vertex moved
+    relative to the others) can make a pair's gap linearised where the step began drift
+    by more than the slack: two vertices of a pair moving apart tangentially by up to 2
+    step drift by about (2 step)^2 / d, here with d no less than th / 2 (a pair inside the
+    layer; module docstring). A cloth at rest or sliding slowly (on fold.yaml's 2 mm layer
+    at dt = 2e-4 s: below 0.35 m/s) skips the second pass."""
+    return (2.0 * step) ** 2 > SLACK * th * 0.5 * th
 
 
 def in_stages(x, v, x0, xe, xt, stages, answer, inv, mass, control, th, dt):
@@ -735,6 +810,7 @@ class SelfCollision:
         self.stats = np.zeros(5)
         self.stats[4] = np.inf
         self.builds = 0
+        self.room = 0.0                          # what free_steps allowed the last call
 
     def _alloc(self, p):
         self.live = np.zeros(p, np.int64)
@@ -750,6 +826,31 @@ class SelfCollision:
     def begin(self, x: np.ndarray, v: np.ndarray) -> None:
         self.x0[:] = x
         self.v0[:] = v
+
+    def free_steps(self, x: np.ndarray, v: np.ndarray, th: float, dt: float) -> int:
+        """How many steps the cloth can probably take from (x, v) with no pair coming
+        within ``th`` (so without a response after each; fewer than 2: answer each
+        step): none while the last step had live pairs or before the first list; else
+        the steps in which the fastest vertex relative to the others, at its present
+        speed but at least :data:`FREE_SPEED`, covers half the room the list leaves
+        (:func:`_room`). :meth:`overran` then checks the call (a cloth can speed up)."""
+        self.room = 0.0
+        if self.xb is None or self.nlive:
+            return 0
+        _displacement(x, self.xb, self.moved)
+        room = _room(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed, self.nee,
+                     self.faces, th, self.moved, 0.5 * self.skin)
+        if room <= 0.0:
+            return 0
+        self.room = room
+        speed = max(_relative_speed(v), FREE_SPEED)
+        return int(min(0.5 * room / (speed * dt), 2.0 ** 62))
+
+    def overran(self, x_start: np.ndarray, x: np.ndarray) -> bool:
+        """Whether a call allowed by :meth:`free_steps` moved some vertex, relative to
+        the others, as far as the room it was given (then it is stepped again, one step
+        per call with the response); else the next step starts from ``x``."""
+        return _displacement(x, x_start, self.step_moved) >= self.room
 
     def _build(self, x: np.ndarray, th: float, skin: float) -> None:
         while True:
@@ -813,7 +914,7 @@ class SelfCollision:
             else:
                 self._respond(self.x0, x, state.v, control, coeff.mass, th, self.friction,
                               dt)
-            if self.stats[0] > 0 or self.g0[:self.nlive].min() < th:
+            if drifts(step, th) and (self.stats[0] > 0 or self.g0[:self.nlive].min() < th):
                 # pairs in contact: once more from the exact geometry at the step's end
                 # (the linearised gap drifts by |slip|^2 / d under a sliding contact;
                 # module docstring), friction already applied

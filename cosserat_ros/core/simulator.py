@@ -414,10 +414,9 @@ class ClothSimulator:
         cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
         if self._self_on:
             self._self.begin(self.state.x, self.state.v)
-            cap = 1                        # the response follows every step
         self._features.start()
         boxes = self._features.present(self.control)   # their calls: _step_in_calls
-        if cap == 0 and not len(self._handles) and not boxes:
+        if cap == 0 and not len(self._handles) and not boxes and not self._self_on:
             done = self.solver.step(n, self.state, self.control, self.coefficients,
                                     self._dt, self._vmax ** 2)
         else:
@@ -445,7 +444,8 @@ class ClothSimulator:
         back to where the call began)."""
         poses = self._obstacles.poses()
         boxes = self._features.present(self.control)
-        start = self.state.copy() if boxes else None
+        own = self._self_on
+        start = self.state.copy() if boxes or own else None
         overran = False
         done = 0
         while done < n:
@@ -461,9 +461,15 @@ class ClothSimulator:
                 k = 1 if near else min(k, free)
                 if near:
                     self._features.begin(self.state.x, self.state.v)
-                else:
-                    start.assign(self.state)
-                overran = False
+            if own:
+                # self-collision likewise: a response after every step while pairs are
+                # near, calls of several steps while none can come near
+                free = 0 if overran else self._self.free_steps(
+                    self.state.x, self.state.v, self.contact_thickness, self._dt)
+                k = min(k, max(1, free))
+            if start is not None and (k > 1 or (boxes and not near)):
+                start.assign(self.state)           # what an overrun call goes back to
+            overran = False
             t = self._time + done * self._dt
             if len(self._handles):
                 k = self._handles.plan(t, self._dt, k)
@@ -476,7 +482,13 @@ class ClothSimulator:
                 self.state.assign(start)           # again, one step per call
                 overran = True
                 continue
-            if got == k and self._self_on:
+            if got == k and own and k > 1:
+                if self._self.overran(start.x, self.state.x):
+                    self.state.assign(start)       # again, one step per call
+                    overran = True
+                    continue
+                self._self.begin(self.state.x, self.state.v)     # no pair came near
+            elif got == k and own:
                 removed = self._self.after_step(self.state, self.control, self.coefficients,
                                                 self._dt)
                 if not math.isfinite(removed):
