@@ -810,7 +810,10 @@ class FeatureContact:
     def _featured(self, ob: np.ndarray) -> np.ndarray:
         """Which obstacle rows have corners and edges (:func:`n_features` > 0): boxes,
         cylinders, meshes with sharp edges."""
-        rows = np.isin(ob[:, SHAPE], FEATURED)
+        shape = ob[:, SHAPE]
+        rows = shape == FEATURED[0]
+        for k in FEATURED[1:]:                 # (np.isin sorts: 40 us on every step call)
+            rows |= shape == k
         fm = self.sh.fmeta
         if fm.shape[0] == ob.shape[0]:
             rows |= (ob[:, SHAPE] == MESH) & (fm[:, FM_NCORNER] > 0)
