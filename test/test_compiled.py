@@ -225,26 +225,32 @@ def test_unwritable_cache_is_left_alone(tmp_path):
 _REFCOUNT = """
 import numba as nb
 import numpy as np
-from cosserat_ros.core.solvers import update
-from cosserat_ros.mesh import grid_mesh
-from cosserat_ros.simulator import ClothSimulator, Material
-s = ClothSimulator(grid_mesh(3, 3), Material(zeta=50.0, xi=2e-5, phi=0.0, density=0.2),
-                   dt=1e-5, check_dt=False)
-s.add_obstacle('plane')
-args = (np.int64(0), np.int64(4), s.state.x, s.state.v, s.control, s.coefficients, s.dt)
-counted = nb.njit(error_model='numpy')(update.contact_range.py_func)
-for k in (update.contact_range, counted):
-    k(*args)
+from cosserat_ros.core.compiled import kernel
+from cosserat_ros.core.self_contact import segment_segment
+
+
+def closest(x, out):
+    # rows of x passed on as views to a kernel that is not inlined: the contact pass's
+    # and the pair geometry's pattern
+    for i in range(x.shape[0] - 3):
+        out[i] = segment_segment(x[i], x[i + 1], x[i + 2], x[i + 3])[0]
+
+
+x, out = np.random.default_rng(0).random((8, 3)), np.zeros(5)
+# the counted twin uncached: numba's cache key has no _nrt, it would load the first
+for k in (kernel(refcount=False)(closest), nb.njit(error_model='numpy')(closest)):
+    k(x, out)
     ir = k.inspect_llvm(k.signatures[0])
     print(ir.count('call void @NRT_incref') + ir.count('call void @NRT_decref'))
 """
 
 
 def test_refcount_false_compiles_without_reference_counting(tmp_path):
-    # kernel(refcount=False) maps to numba's private _nrt=False (numba is pinned): the
-    # contact pass, compiled into an empty cache, has no reference counting in its code;
-    # the same function compiled the default way increments and decrements its arrays'
-    # counts around every vertex. A numba that dropped or renamed the option fails here.
+    # kernel(refcount=False) maps to numba's private _nrt=False (numba is pinned): a loop
+    # that passes rows of an array to another kernel, compiled into an empty cache, has
+    # no reference counting in its code; the same function compiled the default way
+    # increments and decrements the array's count around every call. A numba that
+    # dropped or renamed the option fails here.
     (tmp_path / 'refcount.py').write_text(_REFCOUNT)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
     out = subprocess.run([sys.executable, 'refcount.py'], env=env, cwd=tmp_path,
