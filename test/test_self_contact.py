@@ -161,11 +161,20 @@ def test_a_call_that_moves_further_than_its_room_is_an_overrun():
     assert free <= 0.5 * own.room / (SC.FREE_SPEED * sim.dt) + 1
     moved = x.copy()
     moved[0] += [0.0, 0.0, 0.9 * own.room]
-    assert not own.overran(x, moved)
+    assert not own.overran(x, moved, free, sim.dt)
     moved[0] += [0.0, 0.0, 0.2 * own.room]
-    assert own.overran(x, moved)
+    assert own.overran(x, moved, free, sim.dt)
+    # the next calls take the cloth to be twice as fast as that overrun (not the same
+    # call again and again, each overrunning)
+    assert own.free_steps(x, v, th, sim.dt) < free / 2
     # a rigid translation moves no vertex relative to the others
-    assert not own.overran(x, x + [0.0, 0.0, 10.0 * own.room])
+    assert not own.overran(x, x + [0.0, 0.0, 10.0 * own.room], free, sim.dt)
+    # a thicker layer than the list was built for: one step per call (and a new list)
+    sim.contact_thickness = 2.0 * th
+    assert own.free_steps(x, v, 2.0 * th, sim.dt) == 0
+    sim.step(1)
+    assert own.built_th == 2.0 * th
+    sim.contact_thickness = th
     # a pair near: one step per call
     own.nlive = 1
     assert own.free_steps(x, v, th, sim.dt) == 0

@@ -53,9 +53,11 @@ exact geometry at the step's end (closest points and normals there; friction alr
 applied), against the same targets, which every pass takes from the pair's distance
 where the step began: a pair that began outside the layer ends on it, not inside by the
 drift, and one that began inside ends no closer than it began. Only when that drift can
-exceed the slack (:func:`drifts`: the step's relative motion above about th sqrt(SLACK /
-8)); a layer at rest on another or sliding slowly over it, whose gap the first pass
-holds to within the slack, skips it (half the cost of a folded cloth's response).
+exceed the slack (:func:`drifts`: (2 step)^2 / d > SLACK th, with step the step's
+relative motion and d the closest live pair's distance where it began); a layer at rest
+on another or sliding slowly over it, whose gap the first pass then holds to within
+twice the slack (its own tolerance and the drift), skips it (half the cost of a folded
+cloth's response).
 
 Energy: the response removes the energy :func:`_ledger` measures (kinetic, and the
 potential change over its displacement), counted as dissipation in ``State.acc``.
@@ -739,14 +741,15 @@ def _ledger(x, xs, v, vs, v0, mass, dt):
     return out
 
 
-def drifts(step: float, th: float) -> bool:
+def drifts(step: float, th: float, d: float) -> bool:
     """Whether a step whose relative motion is ``step`` [m] (the most any vertex moved
-    relative to the others) can make a pair's gap linearised where the step began drift
-    by more than the slack: two vertices of a pair moving apart tangentially by up to 2
-    step drift by about (2 step)^2 / d, here with d no less than th / 2 (a pair inside the
-    layer; module docstring). A cloth at rest or sliding slowly (on fold.yaml's 2 mm layer
-    at dt = 2e-4 s: below 0.35 m/s) skips the second pass."""
-    return (2.0 * step) ** 2 > SLACK * th * 0.5 * th
+    relative to the others) can make the gap of a pair at distance ``d`` (the least
+    among the live pairs where the step began), linearised there, drift by more than the
+    slack: two vertices of a pair moving apart tangentially by up to 2 step drift by
+    about (2 step)^2 / d (module docstring). A layer resting on another (d about th) or
+    sliding slowly over it (on fold.yaml's 2 mm layer at dt = 2e-4 s: below ~0.5 m/s)
+    skips the second pass; a pair deep inside the layer makes every moving step take it."""
+    return (2.0 * step) ** 2 > SLACK * th * max(d, 0.0)
 
 
 def in_stages(x, v, x0, xe, xt, stages, answer, inv, mass, control, th, dt):
@@ -777,7 +780,9 @@ class SelfCollision:
 
     ``begin(x, v)`` before a run of steps (the state the first step starts from),
     ``after_step(state, control, coeff, dt)`` after each step: the response, in place;
-    returns the energy it removed [J] (:func:`_ledger`; the balance's dissipation)."""
+    returns the energy it removed [J] (:func:`_ledger`; the balance's dissipation). While
+    no pair is near, a call of several steps (:meth:`free_steps`, checked by
+    :meth:`overran`) takes no response and ends with ``begin`` instead."""
 
     def __init__(self, mesh):
         n = mesh.n_vertices
@@ -811,6 +816,8 @@ class SelfCollision:
         self.stats[4] = np.inf
         self.builds = 0
         self.room = 0.0                          # what free_steps allowed the last call
+        self.overrun_speed = 0.0                 # [m/s] (overran)
+        self.built_th = 0.0                      # the thickness of the last build
 
     def _alloc(self, p):
         self.live = np.zeros(p, np.int64)
@@ -835,7 +842,7 @@ class SelfCollision:
         speed but at least :data:`FREE_SPEED`, covers half the room the list leaves
         (:func:`_room`). :meth:`overran` then checks the call (a cloth can speed up)."""
         self.room = 0.0
-        if self.xb is None or self.nlive:
+        if self.xb is None or self.nlive or th != self.built_th:
             return 0
         _displacement(x, self.xb, self.moved)
         room = _room(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed, self.nee,
@@ -843,14 +850,21 @@ class SelfCollision:
         if room <= 0.0:
             return 0
         self.room = room
-        speed = max(_relative_speed(v), FREE_SPEED)
+        speed = max(_relative_speed(v), FREE_SPEED, self.overrun_speed)
         return int(min(0.5 * room / (speed * dt), 2.0 ** 62))
 
-    def overran(self, x_start: np.ndarray, x: np.ndarray) -> bool:
-        """Whether a call allowed by :meth:`free_steps` moved some vertex, relative to
-        the others, as far as the room it was given (then it is stepped again, one step
-        per call with the response); else the next step starts from ``x``."""
-        return _displacement(x, x_start, self.step_moved) >= self.room
+    def overran(self, x_start: np.ndarray, x: np.ndarray, steps: int, dt: float) -> bool:
+        """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
+        vertex, relative to the others, as far as the room it was given (then it is
+        stepped again, one step per call with the response). A cloth that speeds up
+        within calls would overrun each: the speed of an overrun, doubled, is the least
+        the next calls assume, halved after each call that did not overrun."""
+        moved = _displacement(x, x_start, self.step_moved)
+        if moved >= self.room:
+            self.overrun_speed = max(self.overrun_speed, 2.0 * moved / (steps * dt))
+            return True
+        self.overrun_speed *= 0.5
+        return False
 
     def _build(self, x: np.ndarray, th: float, skin: float) -> None:
         while True:
@@ -869,6 +883,7 @@ class SelfCollision:
             self._alloc(2 * (nvt + nee))
         self.xb = x.copy()
         self.skin = skin
+        self.built_th = th
         self.builds += 1
 
     def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
@@ -896,7 +911,8 @@ class SelfCollision:
         th = float(control.contact_params[0])
         x = state.x
         step = _displacement(x, self.x0, self.step_moved)
-        if self.xb is None or _displacement(x, self.xb, self.moved) > 0.5 * self.skin:
+        if (self.xb is None or th != self.built_th
+                or _displacement(x, self.xb, self.moved) > 0.5 * self.skin):
             self._build(self.x0, th, max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
                                          min(STEPS_PER_BUILD * step, self.edge)))
             self.moved[:] = self.step_moved         # built where this step began
@@ -914,7 +930,8 @@ class SelfCollision:
             else:
                 self._respond(self.x0, x, state.v, control, coeff.mass, th, self.friction,
                               dt)
-            if drifts(step, th) and (self.stats[0] > 0 or self.g0[:self.nlive].min() < th):
+            closest = self.g0[:self.nlive].min()
+            if (self.stats[0] > 0 or closest < th) and drifts(step, th, closest):
                 # pairs in contact: once more from the exact geometry at the step's end
                 # (the linearised gap drifts by |slip|^2 / d under a sliding contact;
                 # module docstring), friction already applied

@@ -440,7 +440,9 @@ class ClothSimulator:
         pose per call, each call short enough that they move at most a quarter of the
         thickness (:mod:`.obstacles`); moving handles a prescribed velocity per call that
         ends it on their path (:mod:`.handles`); break forces are checked after each
-        call. Returns the steps done (fewer: a divergence; obstacles and handles then go
+        call. The corners of boxes (:mod:`.features`) and self-collision answer after
+        each step while they are near, and otherwise allow calls of several steps,
+        checked afterwards and stepped again one by one if they moved too far. Returns the steps done (fewer: a divergence; obstacles and handles then go
         back to where the call began)."""
         poses = self._obstacles.poses()
         boxes = self._features.present(self.control)
@@ -483,7 +485,7 @@ class ClothSimulator:
                 overran = True
                 continue
             if got == k and own and k > 1:
-                if self._self.overran(start.x, self.state.x):
+                if self._self.overran(start.x, self.state.x, k, self._dt):
                     self.state.assign(start)       # again, one step per call
                     overran = True
                     continue
@@ -502,6 +504,8 @@ class ClothSimulator:
                     got = 0
                 else:
                     self.state.acc[1] += removed
+                    if own:                # the next step starts where the box left it
+                        self._self.begin(self.state.x, self.state.v)
             elif boxes:
                 self._features.steps += got        # steps without a feature's force
             done += got
@@ -661,7 +665,7 @@ class ClothSimulator:
         """Whether the cloth collides with itself (:mod:`.self_contact`; default False):
         vertex-triangle and edge-edge pairs kept :attr:`contact_thickness` apart, with
         friction :attr:`self_friction` between the layers. It costs a response after
-        every step (docs/performance.md)."""
+        every step while pairs are near, and little while none is (docs/performance.md)."""
         return self._self_on
 
     @self_collision.setter
