@@ -580,6 +580,10 @@ def test_a_free_call_that_went_further_than_its_gap_is_refused():
     assert not fc.overran(x0, x, control, 1e-3, 10)
     x[4, 2] = -0.011
     assert fc.overran(x0, x, control, 1e-3, 10)
+    # the next calls take the cloth as twice as fast as that one moved (2.2 m/s)
+    assert fc.overrun_speed == pytest.approx(2.2)
+    assert not fc.overran(x0, x0, control, 1e-3, 10)
+    assert fc.overrun_speed == pytest.approx(1.1)
 
 
 def _cylinder_distance(x, center, rot, r, h):

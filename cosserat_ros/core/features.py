@@ -796,6 +796,7 @@ class FeatureContact:
         self.pairs = 0
         self.acted = 0
         self.gap = 0.0
+        self.overrun_speed = 0.0           # [m/s] (overran)
         self._alloc(64)
 
     def _alloc(self, p):
@@ -861,7 +862,8 @@ class FeatureContact:
         self.gap = gap
         if gap <= 0.0:
             return 0
-        return int(min(0.5 * gap / ((max(fastest, FREE_SPEED) + speed) * dt), 2.0 ** 62))
+        return int(min(0.5 * gap / ((max(fastest, FREE_SPEED, self.overrun_speed) + speed)
+                                    * dt), 2.0 ** 62))
 
     def overran(self, x_start: np.ndarray, x: np.ndarray, control, dt: float,
                 steps: int) -> bool:
@@ -871,7 +873,14 @@ class FeatureContact:
         response)."""
         ob = control.obstacles
         speed = float(ob[self._featured(ob), SPEED].max(initial=0.0))
-        return _largest_motion(x, x_start) + speed * steps * dt >= self.gap
+        moved = _largest_motion(x, x_start)
+        if moved + speed * steps * dt >= self.gap:
+            # a cloth that speeds up within calls would overrun each: the next calls
+            # take it as twice as fast as this one moved, halved after each that did not
+            self.overrun_speed = max(self.overrun_speed, 2.0 * moved / (steps * dt))
+            return True
+        self.overrun_speed *= 0.5
+        return False
 
     def _candidates(self, x, ob, th, dt) -> None:
         """The Verlet list (class docstring), built again where this step began if it
