@@ -85,7 +85,7 @@ from .compiled import kernel
 from .contact import (MU_K, PARAM, POS, ROT, SHAPE, SHAPES, SPEED, _point_velocity,
                       distance)
 from .self_contact import (SEP_SPEED, STAGE, _deficit, _inverse_mass, _ledger, in_stages,
-                           respond, segment_segment, set_normal)
+                           overrun_speed, respond, segment_segment, set_normal)
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
@@ -870,17 +870,14 @@ class FeatureContact:
         """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
         vertex, together with the surface of an obstacle with features, further than the
         gap it was given (then it must be stepped again one step per call, with the
-        response)."""
+        response), and the speed the next calls assume
+        (:func:`.self_contact.overrun_speed`)."""
         ob = control.obstacles
         speed = float(ob[self._featured(ob), SPEED].max(initial=0.0))
         moved = _largest_motion(x, x_start)
-        if moved + speed * steps * dt >= self.gap:
-            # a cloth that speeds up within calls would overrun each: the next calls
-            # take it as twice as fast as this one moved, halved after each that did not
-            self.overrun_speed = max(self.overrun_speed, 2.0 * moved / (steps * dt))
-            return True
-        self.overrun_speed *= 0.5
-        return False
+        over = moved + speed * steps * dt >= self.gap
+        self.overrun_speed = overrun_speed(self.overrun_speed, over, moved, steps, dt)
+        return over
 
     def _candidates(self, x, ob, th, dt) -> None:
         """The Verlet list (class docstring), built again where this step began if it

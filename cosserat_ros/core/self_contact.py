@@ -700,27 +700,6 @@ def _room(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, half_skin):
 
 
 @kernel()
-def _relative_speed(v):
-    """max_i |v_i - mean_j v_j| [m/s]: the fastest vertex relative to the cloth's mean
-    motion (a rigid translation brings no pair closer)."""
-    n = v.shape[0]
-    c0 = 0.0
-    c1 = 0.0
-    c2 = 0.0
-    for i in range(n):
-        c0 += v[i, 0]
-        c1 += v[i, 1]
-        c2 += v[i, 2]
-    c0 /= n
-    c1 /= n
-    c2 /= n
-    out = 0.0
-    for i in range(n):
-        out = max(out, (v[i, 0] - c0) ** 2 + (v[i, 1] - c1) ** 2 + (v[i, 2] - c2) ** 2)
-    return math.sqrt(out)
-
-
-@kernel()
 def _ledger(x, xs, v, vs, v0, mass, dt):
     """The energy the response removed [J]: minus the change of kinetic energy and of
     potential energy, the latter as minus the work of the step's force ``f_i = m_i (vs_i
@@ -739,6 +718,16 @@ def _ledger(x, xs, v, vs, v0, mass, dt):
             out -= 0.5 * m * (v[i, k] * v[i, k] - vs[i, k] * vs[i, k])
             out += 0.5 * m * (vs[i, k] - v0[i, k]) / dt * c
     return out
+
+
+def overrun_speed(speed: float, overran: bool, moved: float, steps: int,
+                  dt: float) -> float:
+    """The least speed [m/s] the next calls of several steps assume, after a call of
+    ``steps`` steps that moved the cloth ``moved`` [m] and ``overran`` (or not) the room
+    it was given, where they assumed at least ``speed`` before: a cloth that speeds up
+    within calls would overrun each, so an overrun's speed, doubled, becomes the floor,
+    halved after each call that did not overrun (here and in :mod:`.features`)."""
+    return max(speed, 2.0 * moved / (steps * dt)) if overran else 0.5 * speed
 
 
 def drifts(step: float, th: float, d: float) -> bool:
@@ -816,6 +805,8 @@ class SelfCollision:
         self.stats[4] = np.inf
         self.builds = 0
         self.room = 0.0                          # what free_steps allowed the last call
+        self.still = np.zeros((n, 3))            # zero velocities (free_steps)
+        self.speeds = np.zeros(n)
         self.overrun_speed = 0.0                 # [m/s] (overran)
         self.built_th = 0.0                      # the thickness of the last build
 
@@ -850,21 +841,21 @@ class SelfCollision:
         if room <= 0.0:
             return 0
         self.room = room
-        speed = max(_relative_speed(v), FREE_SPEED, self.overrun_speed)
+        # the fastest vertex relative to the cloth's mean motion (a rigid translation
+        # brings no pair closer): v's displacement from rest, the mean taken out
+        speed = max(_displacement(v, self.still, self.speeds), FREE_SPEED,
+                    self.overrun_speed)
         return int(min(0.5 * room / (speed * dt), 2.0 ** 62))
 
     def overran(self, x_start: np.ndarray, x: np.ndarray, steps: int, dt: float) -> bool:
         """Whether a call of ``steps`` steps allowed by :meth:`free_steps` moved some
         vertex, relative to the others, as far as the room it was given (then it is
-        stepped again, one step per call with the response). A cloth that speeds up
-        within calls would overrun each: the speed of an overrun, doubled, is the least
-        the next calls assume, halved after each call that did not overrun."""
+        stepped again, one step per call with the response), and the speed the next
+        calls assume (:func:`overrun_speed`)."""
         moved = _displacement(x, x_start, self.step_moved)
-        if moved >= self.room:
-            self.overrun_speed = max(self.overrun_speed, 2.0 * moved / (steps * dt))
-            return True
-        self.overrun_speed *= 0.5
-        return False
+        over = moved >= self.room
+        self.overrun_speed = overrun_speed(self.overrun_speed, over, moved, steps, dt)
+        return over
 
     def _build(self, x: np.ndarray, th: float, skin: float) -> None:
         while True:

@@ -442,8 +442,9 @@ class ClothSimulator:
         ends it on their path (:mod:`.handles`); break forces are checked after each
         call. The corners of boxes (:mod:`.features`) and self-collision answer after
         each step while they are near, and otherwise allow calls of several steps,
-        checked afterwards and stepped again one by one if they moved too far. Returns the steps done (fewer: a divergence; obstacles and handles then go
-        back to where the call began)."""
+        checked afterwards and stepped again one by one if they moved too far. Returns
+        the steps done (fewer: a divergence; obstacles and handles then go back to where
+        the call began)."""
         poses = self._obstacles.poses()
         boxes = self._features.present(self.control)
         own = self._self_on
