@@ -20,6 +20,12 @@ FIRST = ('test_mesh.py', 'test_messages.py', 'test_terms.py', 'test_integrator.p
 #: ... and last: the warm-up's tests load every kernel the warm-up and the node's start-up
 #: ask for, which the other modules (and precompile.py) have compiled by then
 LAST = ('test_compiled.py',)
+#: the modules that count a running node's messages per second: they start once
+#: precompile.py has ended, since its compiler on the other core slows the node's
+#: two-thread step (spin barriers) far below its rate, as any busy core does until the
+#: node's thread tuner reacts
+TIMED = ('test_node.py', 'test_node_process.py', 'test_record_render.py',
+         'test_live_view.py')
 
 _precompile = None
 
@@ -43,6 +49,15 @@ def pytest_collection_modifyitems(session, config, items):
             return len(FIRST) + 1 + LAST.index(name)
         return FIRST.index(name) if name in FIRST else len(FIRST)
     items.sort(key=rank)                  # stable: pytest's order within each rank
+
+
+def pytest_runtest_setup(item):
+    if (_precompile is not None and _precompile.poll() is None
+            and os.path.basename(str(item.fspath)) in TIMED):
+        try:
+            _precompile.wait(600)
+        except subprocess.TimeoutExpired:
+            pass
 
 
 def pytest_sessionfinish(session, exitstatus):
