@@ -81,6 +81,13 @@ from .update import contact_list
 __all__ = ['ImplicitSolver', 'SolveReport']
 
 
+def _norm(a: np.ndarray) -> float:
+    """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
+    worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
+    80 sheet: 0.6 -> 5.8 ms an internal force, 2x the whole step)."""
+    return float(np.sqrt(np.sum(a * a)))
+
+
 @dataclass
 class SolveReport:
     """What the last step's Newton solve did."""
@@ -149,9 +156,11 @@ class ImplicitSolver:
         return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
 
     def _pattern(self):
-        """The fixed sparsity of P (the membrane's face blocks and the diagonal blocks),
-        as CSC arrays and the map from the assembled values to them; built once."""
+        """The fixed sparsity of P (the membrane's face blocks, the diagonal blocks and the
+        plate operator on each coordinate), as CSC arrays, the map from the assembled values
+        to them and the plate operator's values for D = 1 N m; built once."""
         if self._csc is None:
+            from ..terms.bending import plate_matrix
             from ..terms.membrane import hessian_pattern
             n = self.model.n_vertices
             r0, c0 = hessian_pattern(self.model.faces.corners)
@@ -160,30 +169,36 @@ class ImplicitSolver:
                                  (n, 3, 3)).ravel()
             c1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, None, :],
                                  (n, 3, 3)).ravel()
-            rows, cols = np.concatenate([r0, r1]), np.concatenate([c0, c1])
+            plate = plate_matrix(self.model).tocoo()
+            r2 = (3 * plate.row[:, None] + k).ravel()
+            c2 = (3 * plate.col[:, None] + k).ravel()
+            rows, cols = np.concatenate([r0, r1, r2]), np.concatenate([c0, c1, c2])
             key = cols.astype(np.int64) * (3 * n) + rows       # column-major: CSC order
             uniq, inv = np.unique(key, return_inverse=True)
             indices = (uniq % (3 * n)).astype(np.int32)
             indptr = np.searchsorted(uniq // (3 * n), np.arange(3 * n + 1)).astype(np.int32)
-            self._csc = (rows, cols, inv, len(uniq), indices, indptr)
+            self._csc = (rows, cols, inv, len(uniq), indices, indptr,
+                         np.repeat(plate.data, 3), len(r0))
         return self._csc
 
     def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, drag_dt,
                         pinned: np.ndarray):
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
-        whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
-        coupling diagonal blocks, with the
-        rows and columns of ``pinned`` (the pins and the vertices that stick to an
-        obstacle) replaced by the identity; factored by SuperLU."""
+        whole Hessian (positive part, ``membrane.face_hessians``) + the plate operator ``6
+        xi L^T M^-1 L`` on each coordinate for the bending (``bending.plate_matrix``: its
+        diagonal blocks alone left 83 CG iterations a step on issue 6's falling 80 x 80
+        sheet, the operator 20) + the coupling's diagonal blocks, with the rows and columns
+        of ``pinned`` (the pins and the vertices that stick to an obstacle) replaced by the
+        identity; factored by SuperLU."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
         mdl = self.model
         f = mdl.faces
         n = len(x)
-        rows, cols, inv, nnz, indices, indptr = self._pattern()
-        blocks = TERMS['bending'].hessian_blocks(mdl, coeff, x)
+        rows, cols, inv, nnz, indices, indptr, plate, nface = self._pattern()
+        blocks = np.zeros((n, 3, 3))
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
@@ -192,10 +207,12 @@ class ImplicitSolver:
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
-        vals = np.concatenate([blk.ravel(), blocks.ravel()])
+        vals = np.concatenate([blk.ravel(), blocks.ravel(), 6.0 * coeff.xi * plate])
         if pinned.any():
             pd = np.repeat(pinned, 3)
-            vals[:blk.size][pd[rows[:blk.size]] | pd[cols[:blk.size]]] = 0.0
+            off = pd[rows] | pd[cols]
+            off[nface:nface + blocks.size] = False        # the identity blocks stay
+            vals[off] = 0.0
         data = np.bincount(inv, weights=vals, minlength=nnz)
         lu = splu(sp.csc_matrix((data, indices, indptr), shape=(3 * n, 3 * n)),
                   permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
@@ -346,7 +363,7 @@ class ImplicitSolver:
         floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + outer))
         floor = max(floor, 1e-300)
         res = rmax / rmax0 if rmax0 > 0.0 else 0.0
-        r0 = np.linalg.norm(r)
+        r0 = _norm(r)
         phi = None
         it = 0
         while res > self.tolerance and rmax > floor and it < self.iterations:
@@ -364,7 +381,7 @@ class ImplicitSolver:
 
                 def pinv(q, base=base):
                     return filt(base(filt(q.copy())))
-            eta = min(0.5, np.sqrt(np.linalg.norm(r) / r0))
+            eta = min(0.5, np.sqrt(_norm(r) / r0))
             p, used = self._cg(xk, f, r, diag, drag_dt, pinv, filt, coeff, eta)
             if used > self.refresh:              # P has drifted from A: factor it again
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
@@ -418,7 +435,7 @@ class ImplicitSolver:
         z = pinv(z_r)
         d = z.copy()
         rz = float(np.sum(z_r * z))
-        bnorm = np.linalg.norm(b)
+        bnorm = _norm(b)
         xscale = max(1.0, float(np.abs(xk).max()))
         for k in range(self.cg_iterations):
             dn = float(np.abs(d).max())
@@ -436,7 +453,7 @@ class ImplicitSolver:
             a = rz / curv
             p += a * d
             z_r -= a * ad
-            if np.linalg.norm(z_r) <= eta * bnorm:
+            if _norm(z_r) <= eta * bnorm:
                 return p, k + 1
             z = pinv(z_r)
             rz_new = float(np.sum(z_r * z))
