@@ -84,7 +84,7 @@ __all__ = ['ImplicitSolver', 'SolveReport']
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
     worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
-    80 sheet: 0.6 -> 5.8 ms an internal force, 2x the whole step)."""
+    80 sheet: 0.6 -> 5.8 ms an internal force inside the solve)."""
     return float(np.sqrt(np.sum(a * a)))
 
 
@@ -156,11 +156,9 @@ class ImplicitSolver:
         return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
 
     def _pattern(self):
-        """The fixed sparsity of P (the membrane's face blocks, the diagonal blocks and the
-        plate operator on each coordinate), as CSC arrays, the map from the assembled values
-        to them and the plate operator's values for D = 1 N m; built once."""
+        """The fixed sparsity of P (the membrane's face blocks and the diagonal blocks),
+        as CSC arrays and the map from the assembled values to them; built once."""
         if self._csc is None:
-            from ..terms.bending import plate_matrix
             from ..terms.membrane import hessian_pattern
             n = self.model.n_vertices
             r0, c0 = hessian_pattern(self.model.faces.corners)
@@ -169,36 +167,30 @@ class ImplicitSolver:
                                  (n, 3, 3)).ravel()
             c1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, None, :],
                                  (n, 3, 3)).ravel()
-            plate = plate_matrix(self.model).tocoo()
-            r2 = (3 * plate.row[:, None] + k).ravel()
-            c2 = (3 * plate.col[:, None] + k).ravel()
-            rows, cols = np.concatenate([r0, r1, r2]), np.concatenate([c0, c1, c2])
+            rows, cols = np.concatenate([r0, r1]), np.concatenate([c0, c1])
             key = cols.astype(np.int64) * (3 * n) + rows       # column-major: CSC order
             uniq, inv = np.unique(key, return_inverse=True)
             indices = (uniq % (3 * n)).astype(np.int32)
             indptr = np.searchsorted(uniq // (3 * n), np.arange(3 * n + 1)).astype(np.int32)
-            self._csc = (rows, cols, inv, len(uniq), indices, indptr,
-                         np.repeat(plate.data, 3), len(r0))
+            self._csc = (rows, cols, inv, len(uniq), indices, indptr)
         return self._csc
 
     def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, drag_dt,
                         pinned: np.ndarray):
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
-        whole Hessian (positive part, ``membrane.face_hessians``) + the plate operator ``6
-        xi L^T M^-1 L`` on each coordinate for the bending (``bending.plate_matrix``: its
-        diagonal blocks alone left 83 CG iterations a step on issue 6's falling 80 x 80
-        sheet, the operator 20) + the coupling's diagonal blocks, with the rows and columns
-        of ``pinned`` (the pins and the vertices that stick to an obstacle) replaced by the
-        identity; factored by SuperLU."""
+        whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
+        coupling diagonal blocks, with the
+        rows and columns of ``pinned`` (the pins and the vertices that stick to an
+        obstacle) replaced by the identity; factored by SuperLU."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
         mdl = self.model
         f = mdl.faces
         n = len(x)
-        rows, cols, inv, nnz, indices, indptr, plate, nface = self._pattern()
-        blocks = np.zeros((n, 3, 3))
+        rows, cols, inv, nnz, indices, indptr = self._pattern()
+        blocks = TERMS['bending'].hessian_blocks(mdl, coeff, x)
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
@@ -207,12 +199,10 @@ class ImplicitSolver:
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
-        vals = np.concatenate([blk.ravel(), blocks.ravel(), 6.0 * coeff.xi * plate])
+        vals = np.concatenate([blk.ravel(), blocks.ravel()])
         if pinned.any():
             pd = np.repeat(pinned, 3)
-            off = pd[rows] | pd[cols]
-            off[nface:nface + blocks.size] = False        # the identity blocks stay
-            vals[off] = 0.0
+            vals[:blk.size][pd[rows[:blk.size]] | pd[cols[:blk.size]]] = 0.0
         data = np.bincount(inv, weights=vals, minlength=nnz)
         lu = splu(sp.csc_matrix((data, indices, indptr), shape=(3 * n, 3 * n)),
                   permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
