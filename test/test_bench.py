@@ -1,5 +1,6 @@
 """The benchmark's own pieces: our row, the peer scene (MuJoCo, when installed)."""
 import math
+import time
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -21,6 +22,22 @@ def test_step_alone_rtf_is_dt_over_the_measured_step():
     rtf, ms = bench.step_rtf(sim, batch_s=0.01, repeats=3, warmup_s=0.02)
     assert ms > 0 and rtf == pytest.approx(sim.dt / (ms * 1e-3))
     assert sim.step_count > steps + 3        # it really stepped: warm-up and 3 batches
+
+
+def test_sustained_rtf_steps_in_calls_of_one_frame_for_the_time_asked(monkeypatch):
+    """The node's 'alone' reference steps as the node's ticks do: calls of one frame's
+    steps, for as long as the node is watched; RTF = sim time over wall time."""
+    sim = bench.scene_simulator(8)
+    calls = []
+    step = sim.step
+    monkeypatch.setattr(sim, 'step', lambda k: (calls.append(k), step(k)))
+    t = time.perf_counter()
+    rtf = bench.sustained_rtf(sim, 0.05)
+    wall = time.perf_counter() - t
+    k = round(1.0 / 30.0 / sim.dt)
+    assert set(calls) == {k} and len(calls) >= 2 and wall >= 0.05
+    # the warm-up call is left out of the rate, so the rate is at least the whole call's
+    assert rtf >= (len(calls) - 1) * k * sim.dt / wall
 
 
 def test_peer_scene_has_the_issue_material():
