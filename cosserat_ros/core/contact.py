@@ -281,7 +281,7 @@ def _far(ob, k, x0, x1, x2, margin):
     return r0 * r0 + r1 * r1 + r2 * r2 > lim * lim
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, forceinline=True)
 def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     """The contact response of vertex i (module docstring) at old position x for its new
     velocity v (before the position update), with obstacles ``ob`` (their fields
@@ -350,7 +350,7 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     return v0, v1, v2, work, diss
 
 
-@kernel(refcount=False)
+@kernel(refcount=False, forceinline=True)
 def push_out(x0, x1, x2, ob, meta, data, th):
     """A vertex just moved to x, put back on the contact layer of every obstacle it is
     inside (along the normal; no velocity change): the corrected (x0, x1, x2)."""
