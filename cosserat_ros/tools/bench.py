@@ -626,11 +626,11 @@ def part_node(watch_s: float):
         print('"alone before / after": the same cloth stepped in this process for as long '
               'as the node is watched, in calls of one frame\'s steps as the node\'s ticks '
               'step it, right before the node starts and right after it ends: what the '
-              'node\'s step allows in the same minute (the node also publishes and waits '
-              'for its timer, and keeps real time at most: node / alone is the node\'s RTF over '
-              'the smaller of 1 and the mean of the two; target >= 0.9). "short batches": '
-              'the median of '
-              'five 0.1 s batches before the node, the host\'s best moments.\n')
+              'node\'s step allows in the same minute. The node also publishes and waits '
+              'for its timer, and keeps real time at most: "node / alone" is its RTF over '
+              'the smaller of 1 and the mean of the two (target >= 0.9). "short batches": '
+              'the median of five 0.1 s batches before the node, the host\'s best '
+              'moments.\n')
         _table(('material / pins', 'dt [s]', 'dt / critical', 'mesh msgs/s', 'RTF',
                 'alone before', 'alone after', 'node / alone', 'short batches: RTF',
                 'short batches: ms'))
