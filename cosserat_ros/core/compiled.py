@@ -60,12 +60,12 @@ def kernel(refcount: bool = True, **options):
     ``refcount=False`` compiles without numba's reference counting (its private
     ``_nrt=False``, numba is pinned), for the kernels called once per vertex or pair, or
     looping over such calls, that allocate nothing (a compile error says so if one does)
-    and return no array (a counting caller would release one it was never given). With counting, every call
-    increments and decrements the count of each array argument, an atomic operation on a
-    count that both threads share, and numba does not remove the pairs around a call
-    (what that cost the contact pass and the tiled step: docs/performance.md). The
-    caller holds references to every array for the call's duration, so none is freed
-    under it."""
+    and return no array (a counting caller would release one it was never given). With
+    counting, every call increments and decrements the count of each array argument, an
+    atomic operation on a count that both threads share, and numba does not remove the
+    pairs around a call (what that cost the contact pass and the tiled step:
+    docs/performance.md). The caller holds references to every array for the call's
+    duration, so none is freed under it."""
     options['fastmath'] = set(options.get('fastmath', STRICT))
     if not refcount:
         options['_nrt'] = False

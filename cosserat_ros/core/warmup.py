@@ -126,7 +126,8 @@ def main(lock: Optional[str] = None, tiled: bool = False, coupled: bool = True,
     otherwise reach last; first what the node needs first, then what its commands and
     other configs need (the energy report had come after those, and the node of
     config/cloth.yaml, needing none of them, compiled it itself). Then remove the lock
-    file ``lock`` that :func:`start` took; also when SIGTERM ends it (its parent ended), so the next start can warm up again.
+    file ``lock`` that :func:`start` took; also when SIGTERM ends it (its parent ended),
+    so the next start can warm up again.
     ``parent``: the pid of the process that started it; gone already: nothing to do."""
     signal.signal(signal.SIGTERM, lambda *_: _end(lock))
     try:
