@@ -62,6 +62,9 @@ import math
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 from .compiled import kernel
 from .surface_query import point_triangle_sq
@@ -94,6 +97,12 @@ C_WIDTH = 5
 
 #: distance reported where a mesh's field has no sample (outside its grid): no contact
 FAR = 1e30
+
+#: obstacles a group of vertices can leave out together (:func:`near_mask`: the bits of a
+#: uint64); every further obstacle is tested for each vertex alone
+MASK_BITS = 64
+#: the mask that keeps every obstacle
+ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 def rotation_matrix(q) -> np.ndarray:
@@ -173,13 +182,17 @@ def distance(ob, meta, data, k, x0, x1, x2):
     """Signed distance [m] of world point x from obstacle k's surface and the outward
     unit normal in the world frame (module docstring): (d, n0, n1, n2)."""
     shape = int(ob[k, SHAPE])
+    if shape == 0:                  # plane z = 0, solid below: d = n . (x - c), n = R e_z
+        n0 = ob[k, ROT + 2]
+        n1 = ob[k, ROT + 5]
+        n2 = ob[k, ROT + 8]
+        d = n0 * (x0 - ob[k, POS]) + n1 * (x1 - ob[k, POS + 1]) + n2 * (x2 - ob[k, POS + 2])
+        return d, n0, n1, n2
     p0, p1, p2 = _local(ob, k, x0, x1, x2)
     g0 = 0.0
     g1 = 0.0
     g2 = 1.0
-    if shape == 0:                                   # plane z = 0, solid below
-        d = p2
-    elif shape == 1:                                 # sphere
+    if shape == 1:                                   # sphere
         r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
         d = r - ob[k, PARAM]
         if r > 0.0:
@@ -281,8 +294,102 @@ def _far(ob, k, x0, x1, x2, margin):
     return r0 * r0 + r1 * r1 + r2 * r2 > lim * lim
 
 
+@intrinsic
+def _trailing_zeros(typingctx, m):
+    """The index of the lowest bit set in uint64 m (one instruction: LLVM's cttz)."""
+    if m != types.uint64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
+    return types.uint64(types.uint64), codegen
+
+
 @kernel(refcount=False, forceinline=True)
-def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
+def _bits(k0, k1):
+    """The mask with bits k0..min(k1, 64)-1 set."""
+    hi = ALL if k1 >= MASK_BITS else (nb.uint64(1) << nb.uint64(k1)) - nb.uint64(1)
+    lo = ALL if k0 >= MASK_BITS else (nb.uint64(1) << nb.uint64(k0)) - nb.uint64(1)
+    return hi & ~lo
+
+
+@kernel(refcount=False, forceinline=True)
+def _next(m, k, nob):
+    """The obstacle after k to visit and the bits still to visit: the lowest bit set in m
+    (an obstacle below 64 that the mask keeps), then each of the obstacles from the 65th
+    on; k = -1 at the end. Starts from m = mask & _bits(0, nob), k = -1."""
+    if m != nb.uint64(0):
+        return nb.int64(_trailing_zeros(m)), m & (m - nb.uint64(1))
+    j = max(k + 1, MASK_BITS)
+    return (j if j < nob else nb.int64(-1)), m
+
+
+@kernel(refcount=False, forceinline=True)
+def near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, th, dt):
+    """Broad phase of a group of vertices (a chunk or a tile of the step) whose old
+    positions lie in the box [lo, hi] and whose speeds before contact are at most vmax:
+    a bit mask with bit k set when obstacle k may act on one of them this step (obstacles
+    from the 65th on have no bit: always kept). Exact, not a heuristic: :func:`resolve`
+    and :func:`push_out` skip the cleared obstacles and give the same result as with all.
+
+    Every vertex ends the contact response slower than ``V = vmax + 2 S`` (S the sum of
+    the obstacles' :data:`SPEED`): a response changes only the velocity relative to the
+    obstacle, u = v - v_o, and never lengthens it, so each obstacle adds at most twice its
+    speed (the caller checks each vertex against V all the same: :func:`mask_speed2`).
+    Then an obstacle with bounding sphere (c, reach) is cleared when ``dist(c, box) >
+    reach + 2 th + dt V``: every vertex starts further from it than the reach
+    :func:`resolve` tests, and ends further than the one :func:`push_out` tests (the
+    spare th covers rounding). A plane that does not rotate (its points all move at
+    ``SPEED``) is cleared when its signed distance is above ``2 th + dt V`` over the whole
+    box: ``min d = n . (m - c) - sum_j |n_j| h_j`` with m the box's centre and h its half
+    sizes. A rotating plane keeps every bit set (its points' speed has no bound)."""
+    nob = ob.shape[0]
+    s = 0.0
+    for k in range(nob):
+        s += ob[k, SPEED]
+        if ob[k, REACH] <= 0.0 and (ob[k, OMEGA] != 0.0 or ob[k, OMEGA + 1] != 0.0
+                                    or ob[k, OMEGA + 2] != 0.0):
+            return ALL
+    margin = 2.0 * th + dt * (vmax + 2.0 * s)
+    m0 = 0.5 * (lo0 + hi0)
+    m1 = 0.5 * (lo1 + hi1)
+    m2 = 0.5 * (lo2 + hi2)
+    h0 = 0.5 * (hi0 - lo0)
+    h1 = 0.5 * (hi1 - lo1)
+    h2 = 0.5 * (hi2 - lo2)
+    mask = ALL
+    for k in range(min(nob, MASK_BITS)):
+        reach = ob[k, REACH]
+        if reach <= 0.0:
+            n0 = ob[k, ROT + 2]
+            n1 = ob[k, ROT + 5]
+            n2 = ob[k, ROT + 8]
+            d = (n0 * (m0 - ob[k, POS]) + n1 * (m1 - ob[k, POS + 1])
+                 + n2 * (m2 - ob[k, POS + 2]) - abs(n0) * h0 - abs(n1) * h1 - abs(n2) * h2)
+            cut = d > margin
+        else:
+            e0 = max(lo0 - ob[k, POS], ob[k, POS] - hi0, 0.0)
+            e1 = max(lo1 - ob[k, POS + 1], ob[k, POS + 1] - hi1, 0.0)
+            e2 = max(lo2 - ob[k, POS + 2], ob[k, POS + 2] - hi2, 0.0)
+            lim = reach + margin
+            cut = e0 * e0 + e1 * e1 + e2 * e2 > lim * lim
+        if cut:
+            mask &= ~(nb.uint64(1) << nb.uint64(k))
+    return mask
+
+
+@kernel(refcount=False, forceinline=True)
+def mask_speed2(vmax, ob):
+    """V squared (:func:`near_mask`): a vertex that ends the response faster than V is
+    pushed out against every obstacle, not only those the mask keeps."""
+    s = 0.0
+    for k in range(ob.shape[0]):
+        s += ob[k, SPEED]
+    return (vmax + 2.0 * s) * (vmax + 2.0 * s)
+
+
+@kernel(refcount=False, forceinline=True)
+def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out, mask):
     """The contact response of vertex i (module docstring) at old position x for its new
     velocity v (before the position update), with obstacles ``ob`` (their fields
     ``meta``, ``data``) and thickness ``th``; writes row i of ``out``
@@ -290,7 +397,8 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     with v the velocity after contact. The caller then moves the vertex and puts it back
     on the layer (:func:`push_out`). An obstacle whose bounding sphere is beyond the
     vertex's reach this step (thickness plus the step's travel of both) is skipped
-    before its distance is evaluated. Only scalars and the contact arrays come in, so the
+    before its distance is evaluated, and so is every obstacle k < 64 whose bit is clear
+    in ``mask`` (:func:`near_mask`). Only scalars and the contact arrays come in, so the
     step's position and velocity arrays stay private to its loop (no aliasing for LLVM
     to assume)."""
     b0 = v0
@@ -301,7 +409,13 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
     work = 0.0
     diss = 0.0
     speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    for k in range(ob.shape[0]):
+    nob = ob.shape[0]
+    left = nb.uint64(mask) & _bits(0, nob)
+    k = nb.int64(-1)
+    while True:
+        k, left = _next(left, k, nob)
+        if k < 0:
+            break
         if _far(ob, k, x0, x1, x2, th + dt * (speed + ob[k, SPEED])):
             continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
@@ -351,10 +465,18 @@ def resolve(i, x0, x1, x2, v0, v1, v2, m, dt, ob, meta, data, th, out):
 
 
 @kernel(refcount=False, forceinline=True)
-def push_out(x0, x1, x2, ob, meta, data, th):
+def push_out(x0, x1, x2, ob, meta, data, th, mask):
     """A vertex just moved to x, put back on the contact layer of every obstacle it is
-    inside (along the normal; no velocity change): the corrected (x0, x1, x2)."""
-    for k in range(ob.shape[0]):
+    inside (along the normal; no velocity change): the corrected (x0, x1, x2). Obstacles
+    whose bit is clear in ``mask`` (:func:`near_mask`) are skipped until a push has moved
+    the vertex: the mask holds for the position the step moved it to, not beyond."""
+    nob = ob.shape[0]
+    left = nb.uint64(mask) & _bits(0, nob)
+    k = nb.int64(-1)
+    while True:
+        k, left = _next(left, k, nob)
+        if k < 0:
+            break
         if _far(ob, k, x0, x1, x2, th):
             continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
@@ -362,6 +484,7 @@ def push_out(x0, x1, x2, ob, meta, data, th):
             x0 += (th - d) * n0
             x1 += (th - d) * n1
             x2 += (th - d) * n2
+            left = _bits(k + 1, nob)
     return x0, x1, x2
 
 

@@ -71,7 +71,7 @@ import math
 import numpy as np
 
 from ..compiled import kernel
-from ..contact import (C_FORCE, C_GAP, C_ID, MU_K, MU_S, SPEED, _far,
+from ..contact import (ALL, C_FORCE, C_GAP, C_ID, MU_K, MU_S, SPEED, _far,
                                        _point_velocity, distance, push_out)
 
 __all__ = ['ObstacleConstraints', 'FREE', 'STICK', 'SLIDE', 'ROUNDS', 'ADDS', 'frames',
@@ -124,7 +124,8 @@ def push_list(verts, x, ob, meta, data, th):
     """:func:`..contact.push_out` for vertices ``verts`` (positions only)."""
     for q in range(verts.shape[0]):
         i = verts[q]
-        x[i, 0], x[i, 1], x[i, 2] = push_out(x[i, 0], x[i, 1], x[i, 2], ob, meta, data, th)
+        x[i, 0], x[i, 1], x[i, 2] = push_out(x[i, 0], x[i, 1], x[i, 2], ob, meta, data, th,
+                                            ALL)
 
 
 class ObstacleConstraints:

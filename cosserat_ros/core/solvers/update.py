@@ -19,7 +19,10 @@ after it, which takes each vertex's new velocity through the contact response (f
 old position ``x - dt v``), moves it with the velocity it ends with and puts it back on
 the contact layer. The two are separate loops because the contact code, inside the
 update loop, slowed the step without obstacles by 10-40% (paired runs): LLVM then has to
-assume that the calls touch the step's arrays.
+assume that the calls touch the step's arrays. Each such loop first bounds its vertices
+(a box and a speed) and keeps only the obstacles that can reach one of them
+(:func:`..contact.near_mask`, exact), so an obstacle away from that part of the cloth
+costs its vertices nothing.
 
 Bookkeeping (``State.acc``): external work ``(f_applied . dx)`` and damping dissipation
 ``c v_old . dx`` with ``dx = dt v_new``, so that ``total(t) - total(0) = external_work -
@@ -31,10 +34,12 @@ Every step kernel (``fast/step.py``, and the reference and seed-route steps of
 """
 from __future__ import annotations
 
+import math
+
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import push_out, resolve
+from ..contact import ALL, mask_speed2, near_mask, push_out, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -100,9 +105,11 @@ def advance_vertex(i, f0, f1, f2, x, v, control, coeff, dt, vmax2):
 
 
 @kernel(inline='always')
-def contact_vertex(i, x, v, control, coeff, dt):
+def contact_vertex(i, x, v, control, coeff, dt, mask, vmax2):
     """The contact response of vertex i after :func:`advance_vertex` moved it (see the
-    module docstring); returns (external work [J], dissipation [J]) of the contact."""
+    module docstring), against the obstacles ``mask`` keeps (:func:`..contact.near_mask`,
+    valid while the vertex ends slower than sqrt(vmax2)); returns (external work [J],
+    dissipation [J]) of the contact."""
     i = nb.uint64(i)
     if control.pinned[i]:
         return 0.0, 0.0
@@ -115,9 +122,11 @@ def contact_vertex(i, x, v, control, coeff, dt):
     x1 = x[i, 1] - dt * v1
     x2 = x[i, 2] - dt * v2
     v0, v1, v2, w, d = resolve(i, x0, x1, x2, v0, v1, v2, coeff.mass[i], dt, ob,
-                               control.sdf_meta, control.sdf_data, th, control.contact)
+                               control.sdf_meta, control.sdf_data, th, control.contact, mask)
+    if v0 * v0 + v1 * v1 + v2 * v2 > vmax2:
+        mask = ALL
     x0, x1, x2 = push_out(x0 + dt * v0, x1 + dt * v1, x2 + dt * v2, ob, control.sdf_meta,
-                          control.sdf_data, th)
+                          control.sdf_data, th, mask)
     v[i, 0] = v0
     v[i, 1] = v1
     v[i, 2] = v2
@@ -127,13 +136,32 @@ def contact_vertex(i, x, v, control, coeff, dt):
     return w, d
 
 
+@kernel(inline='always')
+def _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, i, x, v, dt):
+    """(lo, hi, largest squared speed) grown by vertex i's old position x - dt v."""
+    a0 = x[i, 0] - dt * v[i, 0]
+    a1 = x[i, 1] - dt * v[i, 1]
+    a2 = x[i, 2] - dt * v[i, 2]
+    return (min(lo0, a0), min(lo1, a1), min(lo2, a2), max(hi0, a0), max(hi1, a1),
+            max(hi2, a2), max(s2, v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]))
+
+
 @kernel(refcount=False)
 def contact_range(i0, i1, x, v, control, coeff, dt):
-    """:func:`contact_vertex` for vertices i0..i1-1; returns (work, dissipation)."""
+    """:func:`contact_vertex` for vertices i0..i1-1, the obstacles first narrowed to those
+    that may reach them (:func:`..contact.near_mask`); returns (work, dissipation)."""
+    inf = math.inf
+    lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
+    for i in range(i0, i1):
+        lo0, lo1, lo2, hi0, hi1, hi2, s2 = _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, i, x, v, dt)
+    vmax = math.sqrt(s2)
+    ob = control.obstacles
+    mask = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, control.contact_params[0], dt)
+    vmax2 = mask_speed2(vmax, ob)
     w = 0.0
     d = 0.0
     for i in range(i0, i1):
-        dw, dd = contact_vertex(i, x, v, control, coeff, dt)
+        dw, dd = contact_vertex(i, x, v, control, coeff, dt, mask, vmax2)
         w += dw
         d += dd
     return w, d
@@ -141,11 +169,20 @@ def contact_range(i0, i1, x, v, control, coeff, dt):
 
 @kernel(refcount=False)
 def contact_list(verts, q0, q1, x, v, control, coeff, dt):
-    """:func:`contact_vertex` for vertices ``verts[q0:q1]``; returns (work, dissipation)."""
+    """:func:`contact_range` for vertices ``verts[q0:q1]``."""
+    inf = math.inf
+    lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
+    for q in range(q0, q1):
+        lo0, lo1, lo2, hi0, hi1, hi2, s2 = _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, verts[q],
+                                                x, v, dt)
+    vmax = math.sqrt(s2)
+    ob = control.obstacles
+    mask = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, control.contact_params[0], dt)
+    vmax2 = mask_speed2(vmax, ob)
     w = 0.0
     d = 0.0
     for q in range(q0, q1):
-        dw, dd = contact_vertex(verts[q], x, v, control, coeff, dt)
+        dw, dd = contact_vertex(verts[q], x, v, control, coeff, dt, mask, vmax2)
         w += dw
         d += dd
     return w, d
