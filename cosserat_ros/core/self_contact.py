@@ -293,12 +293,19 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
     for e in range(ne):
         a0 = edges[e, 0]
         a1 = edges[e, 1]
-        lo0 = min(x[a0, 0], x[a1, 0]) - grow
-        lo1 = min(x[a0, 1], x[a1, 1]) - grow
-        lo2 = min(x[a0, 2], x[a1, 2]) - grow
-        hi0 = max(x[a0, 0], x[a1, 0]) + grow
-        hi1 = max(x[a0, 1], x[a1, 1]) + grow
-        hi2 = max(x[a0, 2], x[a1, 2]) + grow
+        # the edge's box grown by radius (e0, e1), and by the longest half edge too
+        e0_0 = min(x[a0, 0], x[a1, 0]) - radius
+        e0_1 = min(x[a0, 1], x[a1, 1]) - radius
+        e0_2 = min(x[a0, 2], x[a1, 2]) - radius
+        e1_0 = max(x[a0, 0], x[a1, 0]) + radius
+        e1_1 = max(x[a0, 1], x[a1, 1]) + radius
+        e1_2 = max(x[a0, 2], x[a1, 2]) + radius
+        lo0 = e0_0 - hmax
+        lo1 = e0_1 - hmax
+        lo2 = e0_2 - hmax
+        hi0 = e1_0 + hmax
+        hi1 = e1_1 + hmax
+        hi2 = e1_2 + hmax
         for cx in range(int(math.floor(lo0 / cell)), int(math.floor(hi0 / cell)) + 1):
             for cy in range(int(math.floor(lo1 / cell)), int(math.floor(hi1 / cell)) + 1):
                 for cz in range(int(math.floor(lo2 / cell)), int(math.floor(hi2 / cell)) + 1):
@@ -317,6 +324,13 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
                         b0 = edges[f, 0]
                         b1 = edges[f, 1]
                         if b0 == a0 or b0 == a1 or b1 == a0 or b1 == a1:
+                            continue
+                        # apart along an axis by more than radius: the segments too
+                        if (min(x[b0, 0], x[b1, 0]) > e1_0 or max(x[b0, 0], x[b1, 0]) < e0_0
+                                or min(x[b0, 1], x[b1, 1]) > e1_1
+                                or max(x[b0, 1], x[b1, 1]) < e0_1
+                                or min(x[b0, 2], x[b1, 2]) > e1_2
+                                or max(x[b0, 2], x[b1, 2]) < e0_2):
                             continue
                         dd = segment_segment(x[a0], x[a1], x[b0], x[b1])[0]
                         if dd >= r2:
