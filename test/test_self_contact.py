@@ -110,6 +110,20 @@ def test_candidates_are_every_pair_within_the_radius():
     for e, f in got_ee:
         assert SC.segment_segment(x[E[e, 0]], x[E[e, 1]], x[E[f, 0]], x[E[f, 1]])[0] \
             < radius ** 2
+    # arrays too short: counts above their lengths, then at those lengths the same lists
+    # in the same order (the parallel build's slabs put back in the serial order)
+    short = SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th,
+                                np.zeros((8, 2), np.int64), np.zeros((8, 2), np.int64),
+                                np.zeros(8), np.zeros(8))
+    assert short[0] > 8 and short[1] > 8
+    vt2, ee2 = np.zeros((short[0], 2), np.int64), np.zeros((short[1], 2), np.int64)
+    vtd2, eed2 = np.zeros(short[0]), np.zeros(short[1])
+    assert SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt2, ee2, vtd2,
+                               eed2) == (nvt, nee)
+    np.testing.assert_array_equal(vt2[:nvt], vt[:nvt])
+    np.testing.assert_array_equal(ee2[:nee], ee[:nee])
+    slabs = np.arange(-(-len(F) // SC.BUILD_BLOCK)) % SC.BUILD_SLABS
+    assert len(set(slabs)) > 1                  # the triangles fill more than one slab
 
 
 def test_switches_and_their_checks():

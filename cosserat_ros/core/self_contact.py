@@ -214,42 +214,22 @@ def _bucket_sort(p, cell, mask):
     return order, count, cells
 
 
+#: the candidate build's parallel loops: blocks of this many triangles or edges ...
+BUILD_BLOCK = 64
+#: ... dealt in turn to this many slabs (block b to slab b % BUILD_SLABS), so that every
+#: slab gets a like share of a dense region (a fold); the threads share the slabs
+BUILD_SLABS = 8
+
+
 @kernel()
-def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
-    """The vertex-triangle pairs (i, t) and edge-edge pairs (e, f), e < f, within
-    ``radius`` of each other at x (module docstring: no pair incident at a vertex, none
-    within ``th`` in the rest shape), into ``vt`` and ``ee``, their distances at x into
-    ``vtd`` and ``eed``; returns their counts (a count above an array's length: make it
-    longer and call again)."""
-    n = x.shape[0]
-    m = faces.shape[0]
-    ne = edges.shape[0]
+def _vt_block(t0, t1, x, rest, faces, radius, th, cell, mask, order, start, cells, out,
+              outd, pos, end):
+    """The vertex-triangle candidates of triangles t0..t1-1 (:func:`build_candidates`),
+    written from row ``pos`` of ``out`` / ``outd`` while below row ``end``; returns the
+    row after the last (counted on beyond ``end``: the slab was too short)."""
     r2 = radius * radius
     th2 = th * th
-    # edge midpoints and half lengths; cells about one mean edge long
-    hmax = 0.0
-    hsum = 0.0
-    mid = np.empty((ne, 3))
-    half = np.empty(ne)
-    for e in range(ne):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        l2 = 0.0
-        for k in range(3):
-            mid[e, k] = 0.5 * (x[a, k] + x[b, k])
-            l2 += (x[a, k] - x[b, k]) ** 2
-        half[e] = 0.5 * math.sqrt(l2)
-        hmax = max(hmax, half[e])
-        hsum += half[e]
-    cell = 2.0 * hsum / max(ne, 1) + radius
-    size = 1
-    while size < 2 * max(n, ne):
-        size *= 2
-    mask = size - 1
-    # vertex-triangle: the vertices in the cells of each triangle's box grown by radius
-    order, start, cells = _bucket_sort(x, cell, mask)
-    nvt = 0
-    for t in range(m):
+    for t in range(t0, t1):
         a = faces[t, 0]
         b = faces[t, 1]
         c = faces[t, 2]
@@ -280,35 +260,36 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
                                                rest[b], rest[c])[0]
                         if dr < th2:
                             continue
-                        if nvt < vt.shape[0]:
-                            vt[nvt, 0] = i
-                            vt[nvt, 1] = t
-                            vtd[nvt] = math.sqrt(dd)
-                        nvt += 1
-    # edge-edge: the midpoints in the cells of each edge's box grown by radius and the
-    # longest half edge, within the two half lengths + radius of its own midpoint
-    order, start, cells = _bucket_sort(mid, cell, mask)
-    nee = 0
-    grow = radius + hmax
-    for e in range(ne):
+                        if pos < end:
+                            out[pos, 0] = i
+                            out[pos, 1] = t
+                            outd[pos] = math.sqrt(dd)
+                        pos += 1
+    return pos
+
+
+@kernel()
+def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, order, start,
+              cells, out, outd, pos, end):
+    """The edge-edge candidates (e, f), f > e, of edges e0..e1-1, as :func:`_vt_block`."""
+    r2 = radius * radius
+    th2 = th * th
+    for e in range(e0, e1):
         a0 = edges[e, 0]
         a1 = edges[e, 1]
-        # the edge's box grown by radius (e0, e1), and by the longest half edge too
-        e0_0 = min(x[a0, 0], x[a1, 0]) - radius
-        e0_1 = min(x[a0, 1], x[a1, 1]) - radius
-        e0_2 = min(x[a0, 2], x[a1, 2]) - radius
-        e1_0 = max(x[a0, 0], x[a1, 0]) + radius
-        e1_1 = max(x[a0, 1], x[a1, 1]) + radius
-        e1_2 = max(x[a0, 2], x[a1, 2]) + radius
-        lo0 = e0_0 - hmax
-        lo1 = e0_1 - hmax
-        lo2 = e0_2 - hmax
-        hi0 = e1_0 + hmax
-        hi1 = e1_1 + hmax
-        hi2 = e1_2 + hmax
-        for cx in range(int(math.floor(lo0 / cell)), int(math.floor(hi0 / cell)) + 1):
-            for cy in range(int(math.floor(lo1 / cell)), int(math.floor(hi1 / cell)) + 1):
-                for cz in range(int(math.floor(lo2 / cell)), int(math.floor(hi2 / cell)) + 1):
+        # the edge's box grown by radius (b_lo, b_hi), and by the longest half edge too
+        b_lo0 = min(x[a0, 0], x[a1, 0]) - radius
+        b_lo1 = min(x[a0, 1], x[a1, 1]) - radius
+        b_lo2 = min(x[a0, 2], x[a1, 2]) - radius
+        b_hi0 = max(x[a0, 0], x[a1, 0]) + radius
+        b_hi1 = max(x[a0, 1], x[a1, 1]) + radius
+        b_hi2 = max(x[a0, 2], x[a1, 2]) + radius
+        for cx in range(int(math.floor((b_lo0 - hmax) / cell)),
+                        int(math.floor((b_hi0 + hmax) / cell)) + 1):
+            for cy in range(int(math.floor((b_lo1 - hmax) / cell)),
+                            int(math.floor((b_hi1 + hmax) / cell)) + 1):
+                for cz in range(int(math.floor((b_lo2 - hmax) / cell)),
+                                int(math.floor((b_hi2 + hmax) / cell)) + 1):
                     h = _hash(cx, cy, cz, mask)
                     for q in range(start[h], start[h + 1]):
                         f = order[q]
@@ -321,27 +302,124 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
                               + (mid[e, 2] - mid[f, 2]) ** 2)
                         if dm > lim * lim:
                             continue
-                        b0 = edges[f, 0]
-                        b1 = edges[f, 1]
-                        if b0 == a0 or b0 == a1 or b1 == a0 or b1 == a1:
+                        c0 = edges[f, 0]
+                        c1 = edges[f, 1]
+                        if c0 == a0 or c0 == a1 or c1 == a0 or c1 == a1:
                             continue
                         # apart along an axis by more than radius: the segments too
-                        if (min(x[b0, 0], x[b1, 0]) > e1_0 or max(x[b0, 0], x[b1, 0]) < e0_0
-                                or min(x[b0, 1], x[b1, 1]) > e1_1
-                                or max(x[b0, 1], x[b1, 1]) < e0_1
-                                or min(x[b0, 2], x[b1, 2]) > e1_2
-                                or max(x[b0, 2], x[b1, 2]) < e0_2):
+                        if (min(x[c0, 0], x[c1, 0]) > b_hi0 or max(x[c0, 0], x[c1, 0]) < b_lo0
+                                or min(x[c0, 1], x[c1, 1]) > b_hi1
+                                or max(x[c0, 1], x[c1, 1]) < b_lo1
+                                or min(x[c0, 2], x[c1, 2]) > b_hi2
+                                or max(x[c0, 2], x[c1, 2]) < b_lo2):
                             continue
-                        dd = segment_segment(x[a0], x[a1], x[b0], x[b1])[0]
+                        dd = segment_segment(x[a0], x[a1], x[c0], x[c1])[0]
                         if dd >= r2:
                             continue
-                        if segment_segment(rest[a0], rest[a1], rest[b0], rest[b1])[0] < th2:
+                        if segment_segment(rest[a0], rest[a1], rest[c0], rest[c1])[0] < th2:
                             continue
-                        if nee < ee.shape[0]:
-                            ee[nee, 0] = e
-                            ee[nee, 1] = f
-                            eed[nee] = math.sqrt(dd)
-                        nee += 1
+                        if pos < end:
+                            out[pos, 0] = e
+                            out[pos, 1] = f
+                            outd[pos] = math.sqrt(dd)
+                        pos += 1
+    return pos
+
+
+@kernel(inline='always')
+def _in_order(nblocks, count, tmp, tmpd, cap, out, outd):
+    """The slabs' rows (:data:`BUILD_SLABS` slabs of ``cap`` rows in ``tmp``, ``tmpd``)
+    into ``out``, ``outd`` in block order, so in the order of a serial loop; ``count``:
+    the rows of each block. Returns the total, or when a slab overflowed the length the
+    output must have for the slabs to fit (above ``len(out)``)."""
+    used = np.zeros(BUILD_SLABS, np.int64)
+    total = 0
+    for b in range(nblocks):
+        used[b % BUILD_SLABS] += count[b]
+        total += count[b]
+    if used.max() > cap:
+        return max(total, BUILD_SLABS * used.max(), out.shape[0] + 1)
+    used[:] = 0
+    k = 0
+    for b in range(nblocks):
+        sl = b % BUILD_SLABS
+        src = sl * cap + used[sl]
+        for r in range(count[b]):
+            out[k, 0] = tmp[src + r, 0]
+            out[k, 1] = tmp[src + r, 1]
+            outd[k] = tmpd[src + r]
+            k += 1
+        used[sl] += count[b]
+    return total
+
+
+@kernel(parallel=True)
+def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
+    """The vertex-triangle pairs (i, t) and edge-edge pairs (e, f), e < f, within
+    ``radius`` of each other at x (module docstring: no pair incident at a vertex, none
+    within ``th`` in the rest shape), into ``vt`` and ``ee``, their distances at x into
+    ``vtd`` and ``eed``; returns their counts (a count above an array's length: make it
+    at least that long and call again).
+
+    Both loops run on the threads in blocks of :data:`BUILD_BLOCK` triangles or edges,
+    dealt to :data:`BUILD_SLABS` slabs (each a share of the output's length), and are
+    then put in block order: the same lists, in the same order, as one loop over all."""
+    n = x.shape[0]
+    m = faces.shape[0]
+    ne = edges.shape[0]
+    # edge midpoints and half lengths; cells about one mean edge long
+    hmax = 0.0
+    hsum = 0.0
+    mid = np.empty((ne, 3))
+    half = np.empty(ne)
+    for e in range(ne):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        l2 = 0.0
+        for k in range(3):
+            mid[e, k] = 0.5 * (x[a, k] + x[b, k])
+            l2 += (x[a, k] - x[b, k]) ** 2
+        half[e] = 0.5 * math.sqrt(l2)
+        hmax = max(hmax, half[e])
+        hsum += half[e]
+    cell = 2.0 * hsum / max(ne, 1) + radius
+    size = 1
+    while size < 2 * max(n, ne):
+        size *= 2
+    mask = size - 1
+    # vertex-triangle: the vertices in the cells of each triangle's box grown by radius
+    order, start, cells = _bucket_sort(x, cell, mask)
+    nbl = (m + BUILD_BLOCK - 1) // BUILD_BLOCK
+    count = np.zeros(nbl, np.int64)
+    cap = vt.shape[0] // BUILD_SLABS
+    tmp = np.empty((BUILD_SLABS * cap, 2), np.int64)
+    tmpd = np.empty(BUILD_SLABS * cap)
+    for sl in nb.prange(BUILD_SLABS):
+        pos = sl * cap
+        for b in range(sl, nbl, BUILD_SLABS):
+            end = _vt_block(b * BUILD_BLOCK, min(m, (b + 1) * BUILD_BLOCK), x, rest, faces,
+                            radius, th, cell, mask, order, start, cells, tmp, tmpd, pos,
+                            (sl + 1) * cap)
+            count[b] = end - pos
+            pos = end
+    nvt = _in_order(nbl, count, tmp, tmpd, cap, vt, vtd)
+    # edge-edge: the midpoints in the cells of each edge's box grown by radius and the
+    # longest half edge, within the two half lengths + radius of its own midpoint
+    order, start, cells = _bucket_sort(mid, cell, mask)
+    nbl = (ne + BUILD_BLOCK - 1) // BUILD_BLOCK
+    count = np.zeros(nbl, np.int64)
+    cap = ee.shape[0] // BUILD_SLABS
+    tmp = np.empty((BUILD_SLABS * cap, 2), np.int64)
+    tmpd = np.empty(BUILD_SLABS * cap)
+    for sl in nb.prange(BUILD_SLABS):
+        pos = sl * cap
+        for b in range(sl, nbl, BUILD_SLABS):
+            end = _ee_block(b * BUILD_BLOCK, min(ne, (b + 1) * BUILD_BLOCK), x, rest, edges,
+                            mid, half, hmax, radius, th, cell, mask, order, start, cells,
+                            tmp, tmpd, pos, (sl + 1) * cap)
+            count[b] = end - pos
+            pos = end
+    nee = _in_order(nbl, count, tmp, tmpd, cap, ee, eed)
     return nvt, nee
 
 
