@@ -144,7 +144,22 @@ def test_self_part_folds_the_cloth_into_touching_layers_without_stretching_it(ca
     layers = np.unique(np.round((x[:, 2] - th) / (1.5 * th), 6))
     assert x[:, 2].min() == pytest.approx(th) and len(layers) > bench.PLEATS
     assert np.ptp(x[:, 0]) < 1.0 / bench.PLEATS + 2 * th      # one pleat wide
-    bench.part_self([24], pairs=1, batch_s=0.01)
-    row = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| 24 |')][0]
+    bench.part_self([24], crumpled=[12], pairs=1, batch_s=0.01)
+    out = capsys.readouterr().out.splitlines()
+    row = [l for l in out if l.startswith('| 24 |')][0]
     cells = [c.strip() for c in row.split('|')[1:-1]]
     assert float(cells[3]) > 0 and int(cells[6]) > 0         # it stepped; layers touch
+    # the crumpled cloth: it stepped, and lies folded on itself (live pairs)
+    row = [l for l in out if l.startswith('| 12 |')][0]
+    cells = [c.strip() for c in row.split('|')[1:-1]]
+    assert float(cells[3]) > 0 and int(cells[7]) > 0
+
+
+def test_the_crumpled_scene_lies_on_the_ground_folded_onto_itself():
+    off, on = bench.crumpled_scenes(12)
+    np.testing.assert_array_equal(off.state.x, on.state.x)
+    assert not off.self_collision and on.self_collision
+    x = on.state.x
+    assert x[:, 2].max() < 0.2 and x[:, 2].min() > 0.0       # down on the ground, above it
+    assert np.ptp(x[:, 1]) < 0.9                             # the 1 m sheet is folded
+    assert on.self_contact_state()['candidates'] > 0

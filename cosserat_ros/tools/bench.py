@@ -5,8 +5,9 @@ grid, all four edges pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/
 D = 1e-4 N m, no coupling) and the shipped ``config/cloth.yaml`` (its material, coupling
 phi = 1e-6 N included, pinned at the two top corners). Shared machines are noisy: compare
 ratios measured in one run. Parts (the later ones each print a table of their own:
-``contact``, ``air``, ``implicit``, ``self`` -- the shipped cloth folded in layers on the
-ground, the step with self-collision on and off, and how its extra cost grows with N):
+``contact``, ``air``, ``implicit``, ``self`` -- the shipped cloth dropped and lying
+crumpled on the ground, then folded in layers on it, the step with self-collision on and
+off, and how its extra cost grows with N):
 
 1. ``ours``, per scene: for each N, the median ms/step of repeated batches after warm-up
    (forces + integration, no publishing), the cost per vertex, steps/s, the largest stable
@@ -459,7 +460,55 @@ def folded_scene(n: int, self_collision: bool, settle_s: float = 0.03) -> ClothS
     return sim
 
 
-def part_self(sizes, pairs: int = 5, batch_s: float = 0.1):
+#: [s] how long the crumpled scene's cloth falls and folds before it is measured
+CRUMPLE_S = 1.5
+
+
+def crumpled_scenes(n: int, seconds: float = CRUMPLE_S):
+    """The issue's crumpled cloth: the shipped cloth (``config/cloth.yaml``'s material, 1 m,
+    no pins), nearly upright (80 degrees) with its lower edge 0.5 m above the ground,
+    dropped with self-collision on and stepped at 0.9 of its critical dt for ``seconds``:
+    it falls, folds onto itself and lies crumpled on the ground. Returns two simulators
+    in that state, self-collision off and on."""
+    def make(own):
+        sim = ClothSimulator(grid_mesh(n, n), scene_material(CLOTH), dt=1e-5,
+                             check_dt=False)
+        sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+        sim.dt = 0.9 * sim.critical_dt()
+        sim.add_obstacle('plane')
+        sim.self_collision = own
+        return sim
+    on = make(True)
+    X = on.mesh.vertices
+    y = X[:, 1] - X[:, 1].min()
+    a = math.radians(80.0)
+    # a small wrinkle across the sheet, so that it does not fall as one flat plane
+    on.set_positions(np.stack([X[:, 0] + 2e-3 * np.sin(14.0 * y), y * math.cos(a),
+                               0.5 + y * math.sin(a)], 1))
+    on.step(max(1, int(round(seconds / on.dt))))
+    off = make(False)
+    off.set_positions(on.state.x)
+    off.state.v[:] = on.state.v
+    return off, on
+
+
+def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1):
+    print('\n## self-collision: a crumpled cloth on the ground\n')
+    print(f'The shipped cloth dropped nearly upright from 0.5 m with self-collision on, '
+          f'after {CRUMPLE_S} s of falling and folding (it lies crumpled on the ground: the '
+          'issue\'s scene), then ms per step with self-collision on and off from that '
+          'state, in alternating back-to-back batches, median of the ratios. "extra / '
+          'step": what self-collision adds over the step without it (target <= 1).\n')
+    _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
+            'extra / step', 'candidates', 'live', 'pairs', 'rebuilds'))
+    for n in crumpled:
+        sims = crumpled_scenes(n)
+        b0 = sims[1].self_contact_state()['builds']
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        st = sims[1].self_contact_state()
+        print(f'| {n} | {sims[0].n_vertices} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
+              f'{ratio - 1:.2f} | {st["candidates"]} | {st["live"]} | {st["active"]} | '
+              f'{st["builds"] - b0} |', flush=True)
     print(f'\n## self-collision: the shipped cloth folded in {PLEATS} layers on the '
           'ground\n')
     print('ms per step with self-collision on and off (the same folded cloth, settled '
@@ -713,7 +762,10 @@ def main(argv=None):
     ap.add_argument('--implicit-sizes', type=int, nargs='*', default=[20, 40, 80],
                     help='N for the implicit-solver part (none: skip it)')
     ap.add_argument('--self-sizes', type=int, nargs='*', default=[40, 80, 160],
-                    help='N for the self-collision part (none: skip it)')
+                    help='N for the self-collision part\'s folded stack (none: skip the '
+                    'part)')
+    ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
+                    help='N for the self-collision part\'s crumpled cloth')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
@@ -731,7 +783,7 @@ def main(argv=None):
     if a.implicit_sizes:
         part_implicit(a.implicit_sizes)
     if a.self_sizes:
-        part_self(a.self_sizes)
+        part_self(a.self_sizes, a.crumpled_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
     print(f'\n# threading layer: {numba.threading_layer()}')
