@@ -1144,8 +1144,22 @@ def main(args=None) -> int:
         # rclpy's own note while it undoes a node that security kept from starting
         import warnings
         warnings.filterwarnings('ignore', message='Failed to fini rosout publisher')
+    # A Ctrl-C that lands while a C library runs a callback into Python (llvmlite's, as
+    # numba loads a cached kernel) cannot propagate: Python prints it as "Exception
+    # ignored" with a traceback and goes on. Note it instead, and end once out of it.
+    interrupts = []
+    default_hook = sys.unraisablehook
+
+    def quiet(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            interrupts.append(unraisable.exc_value)
+        else:
+            default_hook(unraisable)
+    sys.unraisablehook = quiet
     try:
         node = ClothNode(argv=args)                  # None: sys.argv, as rclpy.init
+        if interrupts:
+            raise KeyboardInterrupt
         rclpy.spin(node)
     except ConfigError as exc:
         print(f'cloth_node: error: {exc}', file=sys.stderr)
@@ -1162,6 +1176,7 @@ def main(args=None) -> int:
         elif rclpy.ok():
             raise
     finally:
+        sys.unraisablehook = default_hook
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
