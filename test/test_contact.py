@@ -797,7 +797,7 @@ def test_the_obstacles_a_group_of_vertices_leaves_out_change_nothing(moving):
             vel = (-rng.uniform(0.0, 6.0 if trial % 8 < 4 else 0.5, (16, 1)) * u
                    + rng.normal(0.0, 0.3, (16, 3)))
         mask = np.uint64(C.near_mask(*pts.min(0), *pts.max(0),
-                                     np.linalg.norm(vel, axis=1).max(), ob, th, dt))
+                                     np.linalg.norm(vel, axis=1).max(), ob, th, dt)[0])
         bits = [(int(mask) >> k) & 1 for k in range(C.MASK_BITS)]
         kept += sum(bits[:ob.shape[0]])
         cut += C.MASK_BITS - sum(bits)

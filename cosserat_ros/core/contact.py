@@ -328,14 +328,16 @@ def _next(m, k, nob):
 def near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, th, dt):
     """Broad phase of a group of vertices (a chunk or a tile of the step) whose old
     positions lie in the box [lo, hi] and whose speeds before contact are at most vmax:
-    a bit mask with bit k set when obstacle k may act on one of them this step (obstacles
-    from the 65th on have no bit: always kept). Exact, not a heuristic: :func:`resolve`
-    and :func:`push_out` skip the cleared obstacles and give the same result as with all.
+    (mask, V^2): a bit mask with bit k set when obstacle k may act on one of them this
+    step (obstacles from the 65th on have no bit: always kept), and the squared speed V
+    below which a vertex must end the response for the mask to hold (a faster one is
+    pushed out against every obstacle). Exact, not a heuristic: :func:`resolve` and
+    :func:`push_out` skip the cleared obstacles and give the same result as with all.
 
     Every vertex ends the contact response slower than ``V = vmax + 2 S`` (S the sum of
     the obstacles' :data:`SPEED`): a response changes only the velocity relative to the
     obstacle, u = v - v_o, and never lengthens it, so each obstacle adds at most twice its
-    speed (the caller checks each vertex against V all the same: :func:`mask_speed2`).
+    speed (the caller checks each vertex against V all the same).
     Then an obstacle with bounding sphere (c, reach) is cleared when ``dist(c, box) >
     reach + 2 th + dt V``: every vertex starts further from it than the reach
     :func:`resolve` tests, and ends further than the one :func:`push_out` tests (the
@@ -345,12 +347,15 @@ def near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, th, dt):
     sizes. A rotating plane keeps every bit set (its points' speed has no bound)."""
     nob = ob.shape[0]
     s = 0.0
+    rotating = False
     for k in range(nob):
         s += ob[k, SPEED]
-        if ob[k, REACH] <= 0.0 and (ob[k, OMEGA] != 0.0 or ob[k, OMEGA + 1] != 0.0
-                                    or ob[k, OMEGA + 2] != 0.0):
-            return ALL
-    margin = 2.0 * th + dt * (vmax + 2.0 * s)
+        rotating |= ob[k, REACH] <= 0.0 and (ob[k, OMEGA] != 0.0 or ob[k, OMEGA + 1] != 0.0
+                                             or ob[k, OMEGA + 2] != 0.0)
+    speed = vmax + 2.0 * s
+    if rotating:
+        return ALL, speed * speed
+    margin = 2.0 * th + dt * speed
     m0 = 0.5 * (lo0 + hi0)
     m1 = 0.5 * (lo1 + hi1)
     m2 = 0.5 * (lo2 + hi2)
@@ -375,17 +380,7 @@ def near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, th, dt):
             cut = e0 * e0 + e1 * e1 + e2 * e2 > lim * lim
         if cut:
             mask &= ~(nb.uint64(1) << nb.uint64(k))
-    return mask
-
-
-@kernel(refcount=False, forceinline=True)
-def mask_speed2(vmax, ob):
-    """V squared (:func:`near_mask`): a vertex that ends the response faster than V is
-    pushed out against every obstacle, not only those the mask keeps."""
-    s = 0.0
-    for k in range(ob.shape[0]):
-        s += ob[k, SPEED]
-    return (vmax + 2.0 * s) * (vmax + 2.0 * s)
+    return mask, speed * speed
 
 
 @kernel(refcount=False, forceinline=True)

@@ -180,9 +180,9 @@ class ImplicitSolver:
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
         whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
-        coupling diagonal blocks, with the
-        rows and columns of ``pinned`` (the pins and the vertices that stick to an
-        obstacle) replaced by the identity; factored by SuperLU."""
+        coupling diagonal blocks, with the rows and columns of ``pinned`` (the pins and
+        the vertices that stick to an obstacle) replaced by the identity; factored by
+        SuperLU."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians

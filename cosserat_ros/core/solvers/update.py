@@ -39,7 +39,7 @@ import math
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import ALL, mask_speed2, near_mask, push_out, resolve
+from ..contact import ALL, near_mask, push_out, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -154,10 +154,8 @@ def contact_range(i0, i1, x, v, control, coeff, dt):
     lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
     for i in range(i0, i1):
         lo0, lo1, lo2, hi0, hi1, hi2, s2 = _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, i, x, v, dt)
-    vmax = math.sqrt(s2)
-    ob = control.obstacles
-    mask = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, control.contact_params[0], dt)
-    vmax2 = mask_speed2(vmax, ob)
+    mask, vmax2 = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, math.sqrt(s2), control.obstacles,
+                            control.contact_params[0], dt)
     w = 0.0
     d = 0.0
     for i in range(i0, i1):
@@ -175,10 +173,8 @@ def contact_list(verts, q0, q1, x, v, control, coeff, dt):
     for q in range(q0, q1):
         lo0, lo1, lo2, hi0, hi1, hi2, s2 = _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, verts[q],
                                                 x, v, dt)
-    vmax = math.sqrt(s2)
-    ob = control.obstacles
-    mask = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, control.contact_params[0], dt)
-    vmax2 = mask_speed2(vmax, ob)
+    mask, vmax2 = near_mask(lo0, lo1, lo2, hi0, hi1, hi2, math.sqrt(s2), control.obstacles,
+                            control.contact_params[0], dt)
     w = 0.0
     d = 0.0
     for q in range(q0, q1):
