@@ -126,6 +126,71 @@ def test_candidates_are_every_pair_within_the_radius():
     assert len(set(slabs)) > 1                  # the triangles fill more than one slab
 
 
+def _folded(n=12, size=0.3):
+    """A sheet folded about y = 0 onto itself, 4 mm apart, with a wrinkle."""
+    mesh = grid_mesh(n, n, width=size, height=size)
+    X = mesh.vertices
+    y = X[:, 1]
+    x = np.stack([X[:, 0] + 0.003 * np.sin(40 * y), np.abs(y),
+                  np.where(y > 0, 0.004, 0.0) + 0.001 * np.cos(30 * X[:, 0])], 1)
+    return mesh, x
+
+
+def _pairs(rows, dist, count):
+    return {tuple(int(k) for k in r): float(d) for r, d in zip(rows[:count], dist[:count])}
+
+
+def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
+    """After a partial refresh the list holds exactly the pairs, with the same distances,
+    that a full build finds at the positions it now refers to (the moved vertices where
+    they are, the others where the list was built): the list's bound stays true for every
+    pair it leaves out. Three refreshes in a row, each moving a patch of vertices (part of
+    both layers) and the whole cloth rigidly, the last with the arrays too short."""
+    mesh, x = _folded()
+    th = 1e-4
+    sc = SC.SelfCollision(mesh)
+    sc._build(x, th, 0.006)
+    rng = np.random.default_rng(7)
+    for trial in range(3):
+        x0 = sc.xb.copy()
+        c = x0[rng.integers(len(x0))]
+        patch = np.linalg.norm(x0[:, :2] - c[:2], axis=1) < 0.05
+        assert 0 < patch.sum() < 0.25 * len(x0)
+        x0[patch] += rng.normal(scale=0.002, size=(patch.sum(), 3))
+        x0 += [0.02, -0.01, 0.03]                       # rigid: moves no pair
+        if trial == 2:
+            sc.vt, sc.vtd = sc.vt[:sc.nvt + 2].copy(), sc.vtd[:sc.nvt + 2].copy()
+            sc.ee, sc.eed = sc.ee[:sc.nee + 2].copy(), sc.eed[:sc.nee + 2].copy()
+        SC._displacement(x0, sc.xb, sc.moved)
+        SC._displacement(x0, x0, sc.step_moved)          # no motion in this step
+        far = sc.moved > SC.REFRESH * sc.skin
+        xb = sc.xb.copy()
+        assert sc._refresh(x0, x0, th)
+        # the vertices that moved furthest took new references, where all of them have
+        # moved alike (the mean's shift); the others keep theirs
+        assert np.all(sc.fresh[far]) and sc.fresh.sum() >= patch.sum() // 2
+        assert np.ptp(sc.moved[sc.fresh]) < 1e-12
+        np.testing.assert_array_equal(sc.xb[~sc.fresh], xb[~sc.fresh])
+        n = 4 * (sc.nvt + sc.nee) + 64
+        vt, ee = np.zeros((n, 2), np.int64), np.zeros((n, 2), np.int64)
+        vtd, eed = np.zeros(n), np.zeros(n)
+        nvt, nee = SC.build_candidates(sc.xb, mesh.vertices, mesh.faces, mesh.edges,
+                                       th + sc.skin, th, vt, ee, vtd, eed)
+        assert nvt <= n and nee <= n
+        for got, want in ((_pairs(sc.vt, sc.vtd, sc.nvt), _pairs(vt, vtd, nvt)),
+                          (_pairs(sc.ee, sc.eed, sc.nee), _pairs(ee, eed, nee))):
+            assert got.keys() == want.keys()
+            assert all(got[k] == want[k] for k in want)
+        assert len(_pairs(sc.vt, sc.vtd, sc.nvt)) == sc.nvt > 0
+        assert len(_pairs(sc.ee, sc.eed, sc.nee)) == sc.nee > 0
+    # most of the vertices moved: no partial refresh, the list is built anew
+    x0 = sc.xb + rng.normal(scale=0.01, size=sc.xb.shape)
+    SC._displacement(x0, sc.xb, sc.moved)
+    xb = sc.xb.copy()
+    assert not sc._refresh(x0, x0, th)
+    np.testing.assert_array_equal(sc.xb, xb)
+
+
 def test_switches_and_their_checks():
     sim = ClothSimulator(grid_mesh(4, 4), CLOTH, dt=1e-5, check_dt=False)
     assert sim.self_collision is False
@@ -232,6 +297,10 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
             assert sim.energy()['total'] <= e0 * 1.005
     _frames(sim, 1.5 if solver == 'explicit' else 0.9, each)
     assert max(folded) > 0                                  # it did touch itself
+    if solver == 'explicit':
+        # the list was refreshed in part around the vertices that moved (and the check
+        # above held through those refreshes too)
+        assert sim.self_contact_state()['refreshes'] > 0
     assert sim.positions[:, 2].max() < 0.15                 # and lies crumpled
     assert sim.positions[:, 2].min() > 0.9 * sim.contact_thickness
 
