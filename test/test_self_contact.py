@@ -191,6 +191,34 @@ def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
     np.testing.assert_array_equal(sc.xb, xb)
 
 
+@pytest.mark.parametrize('grown', [False, True])
+def test_a_list_whose_live_pairs_grew_is_built_anew_instead_of_refreshed(grown):
+    """A patch of a folded sheet slides until it runs out of room: a partial refresh,
+    unless the live pairs have grown since the last build by more than a build costs
+    (SelfCollision._bloated: their count times the steps since), then a full build."""
+    from types import SimpleNamespace
+    from cosserat_ros.core.state import Control, State
+    mesh, x = _folded()
+    n = len(x)
+    sc = SC.SelfCollision(mesh)
+    control = Control.empty(n)
+    coeff = SimpleNamespace(mass=np.full(n, 1e-3))
+    state = State(x.copy(), np.zeros((n, 3)), np.zeros(2))
+    sc.begin(state.x, state.v)
+    sc.after_step(state, control, coeff, 1e-4)             # the first list
+    assert sc.builds == 1 and sc.live_built >= 0
+    patch = np.linalg.norm(x[:, :2] - x[5, :2], axis=1) < 0.04
+    assert 0 < patch.sum() < 0.25 * n
+    for _ in range(1000):
+        # the live pairs as many as on the list's first step, or many more
+        sc.live_built = sc.nlive - (10 ** 9 if grown else 0)
+        state.x[patch, 0] += 2e-5                          # 0.2 m/s, well within the skin
+        sc.after_step(state, control, coeff, 1e-4)
+        if sc.builds > 1 or sc.refreshes:
+            break
+    assert (sc.builds, sc.refreshes) == ((2, 0) if grown else (1, 1))
+
+
 def test_switches_and_their_checks():
     sim = ClothSimulator(grid_mesh(4, 4), CLOTH, dt=1e-5, check_dt=False)
     assert sim.self_collision is False

@@ -102,7 +102,12 @@ those vertices against the other triangles); the rest of the list stands. A crum
 cloth with a part still moving renews a few percent of its vertices at a time (80 x 80:
 ~3%, 1-3 ms instead of a build's ~9). When more than :data:`REFRESH_MOST` of the
 vertices moved, the thickness changed, or the step needs a skin larger than the list's
-or under :data:`REFRESH_SKIN` of it, the list is built anew.
+or under :data:`REFRESH_SKIN` of it, the list is built anew; and also when the live
+pairs added since the last build, over the steps since the last refresh, cost more than
+a build (:meth:`SelfCollision._bloated`): the vertices a refresh leaves keep drifting up
+to :data:`REFRESH` of the skin, so more pairs stay live than after a build, which on a
+small dense cloth (40 x 40, ~3,000 live pairs, a build ~2 ms) costs more than the
+builds the refreshes save.
 
 This module imports no ROS package.
 """
@@ -154,6 +159,10 @@ REFRESH = 0.25
 #: candidates, more of them live): then it is built anew
 REFRESH_MOST = 0.25
 REFRESH_SKIN = 0.8
+#: a full build scans every triangle and edge (~280 ns each on 2 threads), a live pair
+#: costs ~80 ns a step (its geometry and the response's checks): so many live pair-steps
+#: cost what one element's scan does (:meth:`SelfCollision._bloated`)
+LIVE_PER_ELEMENT = 3.5
 
 
 @kernel(inline='always')
@@ -1107,6 +1116,8 @@ class SelfCollision:
         self.overrun_speed = 0.0                 # [m/s] (overran)
         self.built_th = 0.0                      # the thickness of the last build
         self.refreshes = 0                       # partial refreshes (_refresh)
+        self.live_built = -1                     # live pairs on the first step of a build
+        self.since = 0                           # steps since the last build or refresh
         self.fresh = np.zeros(n, np.bool_)
         self.tfresh = np.zeros(len(self.faces), np.bool_)
         self.efresh = np.zeros(len(self.edges), np.bool_)
@@ -1178,6 +1189,16 @@ class SelfCollision:
         self.skin = skin
         self.built_th = th
         self.builds += 1
+        self.live_built = -1
+        self.since = 0
+
+    def _bloated(self) -> bool:
+        """Whether a full build now costs less than what the live pairs added since the
+        last one cost over the last run of the list (:data:`LIVE_PER_ELEMENT`): the
+        vertices a partial refresh leaves drift up to :data:`REFRESH` of the skin, and
+        every step checks every pair their drift may have brought within th."""
+        extra = (self.nlive - self.live_built) * self.since
+        return extra > LIVE_PER_ELEMENT * (len(self.faces) + len(self.edges))
 
     def _refresh(self, x0: np.ndarray, x: np.ndarray, th: float) -> bool:
         """A partial refresh of the list (module docstring), where the step began (``x0``;
@@ -1211,6 +1232,7 @@ class SelfCollision:
         if len(self.gd) < self.nvt + self.nee:
             self._alloc(2 * (self.nvt + self.nee))
         self.refreshes += 1
+        self.since = 0
         return _displacement(x, self.xb, self.moved) <= 0.5 * self.skin
 
     def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
@@ -1243,12 +1265,16 @@ class SelfCollision:
         if (self.xb is None or th != self.built_th
                 or (_displacement(x, self.xb, self.moved) > 0.5 * self.skin
                     and not (REFRESH_SKIN * self.skin <= skin <= self.skin
+                             and not self._bloated()
                              and self._refresh(self.x0, x, th)))):
             self._build(self.x0, th, skin)
             self.moved[:] = self.step_moved         # built where this step began
         self.nlive = _select(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed,
                              self.nee, self.faces, th, self.moved, self.step_moved,
                              self.reach, self.live)
+        self.since += 1
+        if self.live_built < 0:
+            self.live_built = self.nlive      # the first step on a new list
         diss = 0.0
         if self.nlive:
             _inverse_mass(coeff.mass, control.pinned, self.inv)
