@@ -105,9 +105,9 @@ vertices moved, the thickness changed, or the step needs a skin larger than the 
 or under :data:`REFRESH_SKIN` of it, the list is built anew; and also when the live
 pairs added since the last build, over the steps since the last refresh, cost more than
 a build (:meth:`SelfCollision._bloated`): the vertices a refresh leaves keep drifting up
-to :data:`REFRESH` of the skin, so more pairs stay live than after a build, which on a
-small dense cloth (40 x 40, ~3,000 live pairs, a build ~2 ms) costs more than the
-builds the refreshes save.
+to :data:`REFRESH` of the skin, so more pairs stay live than after a build, which on
+the crumpled 40 x 40 cloth (a build ~2 ms) and 160 x 160 (10-20,000 live pairs instead
+of ~5,000) costs more than the builds the refreshes save.
 
 This module imports no ROS package.
 """
@@ -159,10 +159,13 @@ REFRESH = 0.25
 #: candidates, more of them live): then it is built anew
 REFRESH_MOST = 0.25
 REFRESH_SKIN = 0.8
-#: a full build scans every triangle and edge (~280 ns each on 2 threads), a live pair
-#: costs ~80 ns a step (its geometry and the response's checks): so many live pair-steps
-#: cost what one element's scan does (:meth:`SelfCollision._bloated`)
-LIVE_PER_ELEMENT = 3.5
+#: so many live pair-steps cost what a full build costs per triangle and edge
+#: (:meth:`SelfCollision._bloated`; measured on crumpled cloths: 1 keeps the refreshes
+#: at 80 x 80 and builds at 40 x 40 and 160 x 160, where a refreshed list's extra live
+#: pairs, 2-4x those after a build, cost more than the builds; 3.5, from ~280 ns a
+#: scanned element against ~80 ns a live pair, kept refreshing at 160 x 160: 1.8-2.0x
+#: extra instead of 1.2-1.3x)
+LIVE_PER_ELEMENT = 1.0
 
 
 @kernel(inline='always')
