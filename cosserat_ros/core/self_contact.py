@@ -327,6 +327,17 @@ def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, o
 
 
 @kernel(inline='always')
+def _slabs(items, out):
+    """The scratch of a parallel loop over ``items`` triangles or edges in blocks, into
+    ``out``: (blocks, rows per block (zeros), rows per slab, the slabs' rows and
+    distances)."""
+    cap = out.shape[0] // BUILD_SLABS
+    nbl = (items + BUILD_BLOCK - 1) // BUILD_BLOCK
+    return (nbl, np.zeros(nbl, np.int64), cap, np.empty((BUILD_SLABS * cap, 2), np.int64),
+            np.empty(BUILD_SLABS * cap))
+
+
+@kernel(inline='always')
 def _in_order(nblocks, count, tmp, tmpd, cap, out, outd):
     """The slabs' rows (:data:`BUILD_SLABS` slabs of ``cap`` rows in ``tmp``, ``tmpd``)
     into ``out``, ``outd`` in block order, so in the order of a serial loop; ``count``:
@@ -389,11 +400,7 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
     mask = size - 1
     # vertex-triangle: the vertices in the cells of each triangle's box grown by radius
     order, start, cells = _bucket_sort(x, cell, mask)
-    nbl = (m + BUILD_BLOCK - 1) // BUILD_BLOCK
-    count = np.zeros(nbl, np.int64)
-    cap = vt.shape[0] // BUILD_SLABS
-    tmp = np.empty((BUILD_SLABS * cap, 2), np.int64)
-    tmpd = np.empty(BUILD_SLABS * cap)
+    nbl, count, cap, tmp, tmpd = _slabs(m, vt)
     for sl in nb.prange(BUILD_SLABS):
         pos = sl * cap
         for b in range(sl, nbl, BUILD_SLABS):
@@ -406,11 +413,7 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
     # edge-edge: the midpoints in the cells of each edge's box grown by radius and the
     # longest half edge, within the two half lengths + radius of its own midpoint
     order, start, cells = _bucket_sort(mid, cell, mask)
-    nbl = (ne + BUILD_BLOCK - 1) // BUILD_BLOCK
-    count = np.zeros(nbl, np.int64)
-    cap = ee.shape[0] // BUILD_SLABS
-    tmp = np.empty((BUILD_SLABS * cap, 2), np.int64)
-    tmpd = np.empty(BUILD_SLABS * cap)
+    nbl, count, cap, tmp, tmpd = _slabs(ne, ee)
     for sl in nb.prange(BUILD_SLABS):
         pos = sl * cap
         for b in range(sl, nbl, BUILD_SLABS):
