@@ -34,6 +34,16 @@ DIVERGENCE_SPEED_FACTOR = 50.0
 #: with s = 1000 it converges (2.3, 0.8, 0.3%) at an ~8% smaller stable step.
 JET_STABILIZATION = 1000.0
 
+#: The jet's normal is a_1 x a_2 / s(|a_1 x a_2|) (``core/terms/jet.py``, ``floored_normal``):
+#: s(r) = r while the area ratio r = |a_1 x a_2| (1 at rest: the chart is orthonormal; 0.9999
+#: to 1.0009 on every shipped mesh) is at least this floor, and (r^2 + f^2) / (2 f) below it.
+#: A stencil crumpled inside itself (a pinch, a fold across the stencil) can make the fitted
+#: tangents parallel while every edge keeps its length; a unit normal's derivative then
+#: grows as 1/r (a bending force of 90 N where the median was 0.005 N, and the explicit step
+#: blew up). With the floor the derivative is bounded by 2/f times its value at rest, the
+#: energy stays C1 and the same as before wherever r >= f.
+JET_AREA_FLOOR = 0.5
+
 #: Vertices per work item of the parallel vertex pass: each chunk owns one scratch row, so
 #: the pass allocates nothing and shares no writes; small enough to balance two threads on
 #: a 20x20 sheet.

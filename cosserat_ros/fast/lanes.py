@@ -28,7 +28,7 @@ import numpy as np
 from ..core.compiled import kernel
 from ..core.material import contract
 from ..core.terms.coupling import add_face_side, epsbar
-from ..core.terms.jet import cross, jet_adjoint, phi_dot
+from ..core.terms.jet import cross, floored_normal, jet_adjoint, phi_dot
 from ..core.terms.membrane import face_membrane
 from .simd import LANES, lane, splat, vfma, vload, vload3, vset, vsqrt, vstore
 
@@ -392,11 +392,7 @@ def vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, sta
         a21 = vfma(w1, d1, a21)
         a22 = vfma(w1, d2, a22)
     c0, c1, c2 = cross(a10, a11, a12, a20, a21, a22)
-    cn = vsqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    icn = 1.0 / cn
-    n0 = c0 * icn
-    n1 = c1 * icn
-    n2 = c2 * icn
+    n0, n1, n2, isn, gam = floored_normal(c0, c1, c2, vsqrt(c0 * c0 + c1 * c1 + c2 * c2))
     # pass 2: dn_k and the jet along the normal q_c = coef_c . n (Eq. 11)
     q2 = splat(0.0)
     q3 = splat(0.0)
@@ -471,10 +467,10 @@ def vertex_lanes(g, x, g_vert, g_ptr, g_wptr, st_idx, st_w, st_uv, st_sigma, sta
         v1 = vfma(h, vload(sc, r0 + W + 4 * s), v1)
         v2 = vfma(h, vload(sc, r0 + 2 * W + 4 * s), v2)
         hs = hs + h
-    vn = v0 * n0 + v1 * n1 + v2 * n2
-    t0 = (v0 - vn * n0) * icn
-    t1 = (v1 - vn * n1) * icn
-    t2 = (v2 - vn * n2) * icn
+    vn = (v0 * n0 + v1 * n1 + v2 * n2) * gam
+    t0 = (v0 - vn * n0) * isn
+    t1 = (v1 - vn * n1) * isn
+    t2 = (v2 - vn * n2) * isn
     j10, j11, j12 = cross(a20, a21, a22, t0, t1, t2)
     j20, j21, j22 = cross(t0, t1, t2, a10, a11, a12)
     # pass 4: dE_i/dx_j per stencil entry; the centre takes minus their sum (coupled:

@@ -18,7 +18,8 @@ The type lowers to LLVM's ``<4 x double>``; values stay in registers. Operations
   vector per column: one 96-byte load and three shuffles instead of twelve scalar loads);
 * ``splat(s)``: all lanes s; ``vset(s0, s1, s2, s3)``: from four scalars; ``lane(v, l)``;
 * ``+ - * /`` and unary ``-`` (with a vector or a float on either side), ``vfma(a, b, c)``
-  ``= a * b + c`` with one rounding, ``vsqrt``.
+  ``= a * b + c`` with one rounding, ``vsqrt``, and the builtin ``min(a, b)`` of two
+  vectors or a vector and a float (lane-wise, ``llvm.minnum``).
 
 Arithmetic is IEEE per lane, in the order written, with the one fast-math flag of
 ``compiled.STRICT`` (``contract``: a multiply feeding an add may become an FMA), so a lane
@@ -191,6 +192,16 @@ for _pyop, _instr in ((operator.add, 'fadd'), (operator.sub, 'fsub'), (operator.
                       (operator.truediv, 'fdiv')):
     _register_operator(_pyop, _binary(_instr))
 
+
+
+@intrinsic
+def _vmin(typingctx, a, b):
+    def codegen(context, builder, sig, args):
+        return _call_llvm(builder, 'minnum', args)
+    return f64x4(f64x4, f64x4), codegen
+
+
+_register_operator(min, _vmin)
 
 
 @intrinsic

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms
-from .jet import cross, gather, jet_energies, jet_fields
+from .jet import cross, floored_normal, gather, jet_energies, jet_fields
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'energy_from_fields']
 
@@ -84,10 +84,10 @@ def gn_coefficients(x, st_ptr, st_idx, st_w, st_uv, dual_area, ainv, stab, xi, c
             a21 += st_w[1, k] * x[j, 1]
             a22 += st_w[1, k] * x[j, 2]
         c0, c1, c2 = cross(a10, a11, a12, a20, a21, a22)
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        normals[i, 0] = c0 / cn
-        normals[i, 1] = c1 / cn
-        normals[i, 2] = c2 / cn
+        n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+        normals[i, 0] = n0
+        normals[i, 1] = n1
+        normals[i, 2] = n2
         b = 2.0 * dual_area[i] * xi
         om2 = 2.0 * stab[i]
         i11 = ainv[i, 0]

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms, contract
-from .jet import gather, jet_energies, jet_fields
+from .jet import floored_normal, gather, jet_energies, jet_fields
 from .membrane import deformation_gradient, green_strain
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'epsbar', 'add_face_side', 'corner_rows',
@@ -251,8 +251,8 @@ def entry_blocks(x, st_ptr, st_idx, st_w, faces, dinv, vf_ptr, vf_face, vf_K, vf
         c0 = a11 * a22 - a12 * a21
         c1 = a12 * a20 - a10 * a22
         c2 = a10 * a21 - a11 * a20
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        nrm = (c0 / cn, c1 / cn, c2 / cn)
+        n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+        nrm = (n0, n1, n2)
         i11 = ainv[i, 0]
         i12 = ainv[i, 1]
         i22 = ainv[i, 2]

@@ -3,7 +3,7 @@
 Both vertex terms depend on the positions through the cubic least-squares jet of
 :mod:`..geometry` (weights ``W`` over the stencil of vertex i, its 2-ring or more):
 
-    a_a  = sum_k W_k,a d_k,          n = a_1 x a_2 / |a_1 x a_2|        (Eq. 8, 13)
+    a_a  = sum_k W_k,a d_k,          n = a_1 x a_2 / s(|a_1 x a_2|)     (Eq. 8, 13)
     b_ab = sum_k W_k,ab dn_k,        dn_k = d_k . n                      (Eq. 10, 11)
     kap  = -(b - B)                                                      (Eq. 17)
 
@@ -13,9 +13,20 @@ bending gives the first part, coupling the second) has, with ``h_k = dE_i/d(dn_k
 ``g_ab = dE_i/db_ab = -A_i (M^ab + M^ba)/(1 + [a == b])``,
 
     dE_i/dd_k = h_k n + W_k,1 (a_2 x t) + W_k,2 (t x a_1),
-    t = (I - n n^T) sum_k h_k d_k / |a_1 x a_2|
+    t = (I - gam n n^T) sum_k h_k d_k / s
 
-since ``n`` depends on the positions through ``a_1, a_2`` only. The centre takes minus the
+since ``n`` depends on the positions through ``a_1, a_2`` only (``c = a_1 x a_2``,
+``r = |c|``: ``dn = (I - gam n n^T) dc / s``).
+
+The normal's length (:func:`floored_normal`): ``s(r) = r`` (a unit normal, Eq. 13, and
+``gam = 1``) while the area ratio ``r`` is at least ``f = constants.JET_AREA_FLOOR`` (at rest
+r = 1: the chart is orthonormal), and ``s(r) = (r^2 + f^2) / (2 f)`` below it, C1 at f. With
+``u = min(r, f)``: ``s = r + (f - u)^2 / (2 f)``, ``s' = u / f`` and ``gam = r s' s / r^2 =
+u s / (f r)``. A stencil crumpled inside itself (a pinch, a fold across it) can make the
+fitted tangents parallel while every edge keeps its length; a unit normal's derivative
+grows as 1/r there and the explicit step blows up. Below the floor the normal shortens
+instead, so the curvature ``b = n . r_ab`` the jet reports fades where the fit no longer
+sees a surface, and ``1/s <= 2/f``. The centre takes minus the
 sum of the others. Four passes over the stencil per vertex (:func:`jet_adjoint`); the
 adjoint is the transpose of the discrete derivative operators, a discrete divergence,
 gathered per vertex through the transposed stencil (:func:`gather`).
@@ -43,16 +54,30 @@ import numpy as np
 from numba import literally
 
 from ..compiled import REDUCTION, kernel
+from ..constants import JET_AREA_FLOOR
 from ..material import contract
 
 __all__ = ['jet_adjoint', 'vertex_pass', 'vertex_energies', 'gather', 'normal_residuals',
-           'cross', 'phi_dot', 'jet_fields', 'jet_energies']
+           'cross', 'floored_normal', 'phi_dot', 'jet_fields', 'jet_energies']
 
 
 @kernel(inline='always')
 def cross(a0, a1, a2, b0, b1, b2):
     """a x b for vectors given by components (scalars or SIMD vectors)."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@kernel(inline='always')
+def floored_normal(c0, c1, c2, cn):
+    """The jet's normal ``c / s(r)`` from ``c = a_1 x a_2`` and ``r = |c|`` = ``cn`` (scalars
+    or SIMD vectors; module docstring): (n0, n1, n2, 1/s, gam). Where ``r >= f`` this is
+    ``c / r`` with ``gam = 1``, bit for bit."""
+    f = JET_AREA_FLOOR
+    u = min(cn, f)
+    s = cn + (f - u) * (f - u) * (0.5 / f)
+    isn = 1.0 / s
+    gam = u * s / (f * cn)
+    return c0 * isn, c1 * isn, c2 * isn, isn, gam
 
 
 @kernel(inline='always')
@@ -157,11 +182,7 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
         a21 += st_w[1, q0 + s] * d1
         a22 += st_w[1, q0 + s] * d2
     c0, c1, c2 = cross(a10, a11, a12, a20, a21, a22)
-    cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    icn = 1.0 / cn
-    n0 = c0 * icn
-    n1 = c1 * icn
-    n2 = c2 * icn
+    n0, n1, n2, isn, gam = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
     # pass 2: dn_k and the jet along the normal, q_c = coef_c . n; b_ab = q for r_ab
     # (Eq. 11). q_1 = a_1 . n and q_2 = a_2 . n vanish.
     q2, q3, q4, q5, q6, q7, q8 = normal_jet(ns, q0, st_w, sc, ch, n0, n1, n2)
@@ -196,11 +217,11 @@ def jet_adjoint(i, pc, p1, pw, x, st_idx, st_w, st_uv, st_sigma, stab, dual_area
     if not adjoint:
         return k11, k12, k22, om * e
     v0, v1, v2, hs = weighted_offsets(ns, sc, ch)
-    # V = sum_k h_k d_k, and V . dn with dn = (I - n n^T) (da_1 x a_2 + a_1 x da_2) / |c|
-    vn = v0 * n0 + v1 * n1 + v2 * n2
-    t0 = (v0 - vn * n0) * icn
-    t1 = (v1 - vn * n1) * icn
-    t2 = (v2 - vn * n2) * icn
+    # V = sum_k h_k d_k, and V . dn with dn = (I - gam n n^T) (da_1 x a_2 + a_1 x da_2) / s
+    vn = (v0 * n0 + v1 * n1 + v2 * n2) * gam
+    t0 = (v0 - vn * n0) * isn
+    t1 = (v1 - vn * n1) * isn
+    t2 = (v2 - vn * n2) * isn
     j10, j11, j12 = cross(a20, a21, a22, t0, t1, t2)
     j20, j21, j22 = cross(t0, t1, t2, a10, a11, a12)
     # pass 4: dE_i/dx_j per stencil entry (elementwise: it vectorises). The centre takes
@@ -308,10 +329,7 @@ def normal_residuals(x, st_ptr, st_idx, st_w, st_uv, out):
                 jt[c, 1] += st_w[c, k] * x[j, 1]
                 jt[c, 2] += st_w[c, k] * x[j, 2]
         c0, c1, c2 = cross(jt[0, 0], jt[0, 1], jt[0, 2], jt[1, 0], jt[1, 1], jt[1, 2])
-        cn = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        n0 = c0 / cn
-        n1 = c1 / cn
-        n2 = c2 / cn
+        n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
         q = np.zeros(nc)
         for c in range(nc):
             q[c] = jt[c, 0] * n0 + jt[c, 1] * n1 + jt[c, 2] * n2
