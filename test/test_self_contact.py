@@ -128,6 +128,99 @@ def test_candidates_are_every_pair_within_the_radius():
     assert len(set(slabs)) > 1                  # the triangles fill more than one slab
 
 
+def _folded(n=12, size=0.3):
+    """A sheet folded about y = 0 onto itself, 4 mm apart, with a wrinkle."""
+    mesh = grid_mesh(n, n, width=size, height=size)
+    X = mesh.vertices
+    y = X[:, 1]
+    x = np.stack([X[:, 0] + 0.003 * np.sin(40 * y), np.abs(y),
+                  np.where(y > 0, 0.004, 0.0) + 0.001 * np.cos(30 * X[:, 0])], 1)
+    return mesh, x
+
+
+def _pairs(rows, dist, count):
+    return {tuple(int(k) for k in r): float(d) for r, d in zip(rows[:count], dist[:count])}
+
+
+def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
+    """After a partial refresh the list holds exactly the pairs, with the same distances,
+    that a full build finds at the positions it now refers to (the moved vertices where
+    they are, the others where the list was built): the list's bound stays true for every
+    pair it leaves out. Three refreshes in a row, each moving a patch of vertices (part of
+    both layers) and the whole cloth rigidly, the last with the arrays too short."""
+    mesh, x = _folded()
+    th = 1e-4
+    sc = SC.SelfCollision(mesh)
+    sc._build(x, th, 0.006)
+    rng = np.random.default_rng(7)
+    for trial in range(3):
+        x0 = sc.xb.copy()
+        c = x0[rng.integers(len(x0))]
+        patch = np.linalg.norm(x0[:, :2] - c[:2], axis=1) < 0.05
+        assert 0 < patch.sum() < 0.25 * len(x0)
+        x0[patch] += rng.normal(scale=0.002, size=(patch.sum(), 3))
+        x0 += [0.02, -0.01, 0.03]                       # rigid: moves no pair
+        if trial == 2:
+            sc.vt, sc.vtd = sc.vt[:sc.nvt + 2].copy(), sc.vtd[:sc.nvt + 2].copy()
+            sc.ee, sc.eed = sc.ee[:sc.nee + 2].copy(), sc.eed[:sc.nee + 2].copy()
+        SC._displacement(x0, sc.xb, sc.moved)
+        SC._displacement(x0, x0, sc.step_moved)          # no motion in this step
+        far = sc.moved > SC.REFRESH * sc.skin
+        xb = sc.xb.copy()
+        assert sc._refresh(x0, x0, th)
+        # the vertices that moved furthest took new references, where all of them have
+        # moved alike (the mean's shift); the others keep theirs
+        assert np.all(sc.fresh[far]) and sc.fresh.sum() >= patch.sum() // 2
+        assert np.ptp(sc.moved[sc.fresh]) < 1e-12
+        np.testing.assert_array_equal(sc.xb[~sc.fresh], xb[~sc.fresh])
+        n = 4 * (sc.nvt + sc.nee) + 64
+        vt, ee = np.zeros((n, 2), np.int64), np.zeros((n, 2), np.int64)
+        vtd, eed = np.zeros(n), np.zeros(n)
+        nvt, nee = SC.build_candidates(sc.xb, mesh.vertices, mesh.faces, mesh.edges,
+                                       th + sc.skin, th, vt, ee, vtd, eed)
+        assert nvt <= n and nee <= n
+        for got, want in ((_pairs(sc.vt, sc.vtd, sc.nvt), _pairs(vt, vtd, nvt)),
+                          (_pairs(sc.ee, sc.eed, sc.nee), _pairs(ee, eed, nee))):
+            assert got.keys() == want.keys()
+            assert all(got[k] == want[k] for k in want)
+        assert len(_pairs(sc.vt, sc.vtd, sc.nvt)) == sc.nvt > 0
+        assert len(_pairs(sc.ee, sc.eed, sc.nee)) == sc.nee > 0
+    # most of the vertices moved: no partial refresh, the list is built anew
+    x0 = sc.xb + rng.normal(scale=0.01, size=sc.xb.shape)
+    SC._displacement(x0, sc.xb, sc.moved)
+    xb = sc.xb.copy()
+    assert not sc._refresh(x0, x0, th)
+    np.testing.assert_array_equal(sc.xb, xb)
+
+
+@pytest.mark.parametrize('grown', [False, True])
+def test_a_list_whose_live_pairs_grew_is_built_anew_instead_of_refreshed(grown):
+    """A patch of a folded sheet slides until it runs out of room: a partial refresh,
+    unless the live pairs have grown since the last build by more than a build costs
+    (SelfCollision._bloated: their count times the steps since), then a full build."""
+    from types import SimpleNamespace
+    from cosserat_ros.core.state import Control, State
+    mesh, x = _folded()
+    n = len(x)
+    sc = SC.SelfCollision(mesh)
+    control = Control.empty(n)
+    coeff = SimpleNamespace(mass=np.full(n, 1e-3))
+    state = State(x.copy(), np.zeros((n, 3)), np.zeros(2))
+    sc.begin(state.x, state.v)
+    sc.after_step(state, control, coeff, 1e-4)             # the first list
+    assert sc.builds == 1 and sc.live_built >= 0
+    patch = np.linalg.norm(x[:, :2] - x[5, :2], axis=1) < 0.04
+    assert 0 < patch.sum() < 0.25 * n
+    for _ in range(1000):
+        # the live pairs as many as on the list's first step, or many more
+        sc.live_built = sc.nlive - (10 ** 9 if grown else 0)
+        state.x[patch, 0] += 2e-5                          # 0.2 m/s, well within the skin
+        sc.after_step(state, control, coeff, 1e-4)
+        if sc.builds > 1 or sc.refreshes:
+            break
+    assert (sc.builds, sc.refreshes) == ((2, 0) if grown else (1, 1))
+
+
 def test_switches_and_their_checks():
     sim = ClothSimulator(grid_mesh(4, 4), CLOTH, dt=1e-5, check_dt=False)
     assert sim.self_collision is False
@@ -199,7 +292,8 @@ def test_a_call_that_moves_further_than_its_room_is_an_overrun():
 # ---------------------------------------------------------------- scenes
 
 @pytest.mark.parametrize('solver', ['explicit', 'implicit'])
-def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself(solver):
+def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself(solver,
+                                                                                 monkeypatch):
     """A 0.5 m cloth, nearly upright, its lower edge 0.5 m above the ground, falls and
     folds onto itself; with the explicit solver the energy never rises above its start.
     The implicit solver at dt = 1/30 s (a relative motion of ~10 thicknesses a step: the
@@ -211,6 +305,10 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
     its start."""
     if solver == 'explicit':
         sim = _sim(16, 16, 0.5, 0.5)
+        # partial refreshes of the candidate list wherever they can be (on so small a
+        # cloth a full build costs less than their extra live pairs: SelfCollision._bloated),
+        # so that the independent check below covers them
+        monkeypatch.setattr(SC, 'LIVE_PER_ELEMENT', 1e9)
     else:
         # 12 x 12: at 16 x 16 the solves' fight with the response after them (below)
         # took 25-100 s of stepping, depending on the last bits of the arithmetic
@@ -234,6 +332,10 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
             assert sim.energy()['total'] <= e0 * 1.005
     _frames(sim, 1.5 if solver == 'explicit' else 0.9, each)
     assert max(folded) > 0                                  # it did touch itself
+    if solver == 'explicit':
+        # the list was refreshed in part around the vertices that moved, and the check
+        # above held through those refreshes
+        assert sim.self_contact_state()['refreshes'] > 0
     assert sim.positions[:, 2].max() < 0.15                 # and lies crumpled
     assert sim.positions[:, 2].min() > 0.9 * sim.contact_thickness
 

@@ -88,6 +88,27 @@ implicit solver's, is covered too). Each step then looks only at the live pairs
 moved since, can still be within ``th``. A cloth at rest or falling rigidly builds its
 list once and has no live pair until it touches itself.
 
+Partial refresh (:meth:`SelfCollision._refresh`): the references ``x_b`` need not be one
+snapshot. A pair missing from the list was further than ``th + skin`` apart at its
+vertices' own references, so it cannot come within ``th`` before one of them has moved
+more than ``skin / 2`` from its reference relative to the others (the distance changes
+by at most the two sides' displacements, less any common translation: the mean is still
+taken out). So when some vertex runs out of room, only the vertices that moved more than
+:data:`REFRESH` of the skin, or that at this step's speed would run out of room before
+the fastest of them could again (:func:`_renew`), take new references where the step
+began, and the candidates that hold one of them are found again there
+(:func:`scan_candidates`: the triangles and edges that hold one against everything, and
+those vertices against the other triangles); the rest of the list stands. A crumpled
+cloth with a part still moving renews a few percent of its vertices at a time (80 x 80:
+~3%, 1-3 ms instead of a build's ~9). When more than :data:`REFRESH_MOST` of the
+vertices moved, the thickness changed, or the step needs a skin larger than the list's
+or under :data:`REFRESH_SKIN` of it, the list is built anew; and also when the live
+pairs added since the last build, over the steps since the last refresh, cost more than
+a build (:meth:`SelfCollision._bloated`): the vertices a refresh leaves keep drifting up
+to :data:`REFRESH` of the skin, so more pairs stay live than after a build, which on
+the crumpled 40 x 40 cloth (a build ~2 ms) and 160 x 160 (10-20,000 live pairs instead
+of ~5,000) costs more than the builds the refreshes save.
+
 This module imports no ROS package.
 """
 from __future__ import annotations
@@ -130,6 +151,21 @@ STEPS_PER_BUILD = 16.0
 #: [m/s] the relative speed a cloth is assumed to have at least when the steps it can
 #: take without a response are counted (:meth:`SelfCollision.free_steps`)
 FREE_SPEED = 0.25
+#: when the list runs out of room, the vertices that moved more than this fraction of the
+#: skin renew their candidates (a partial refresh: module docstring) ...
+REFRESH = 0.25
+#: ... unless they are more than this fraction of all vertices, or the skin the step
+#: needs is below this fraction of the list's (a larger skin than needed: more
+#: candidates, more of them live): then it is built anew
+REFRESH_MOST = 0.25
+REFRESH_SKIN = 0.8
+#: so many live pair-steps cost what a full build costs per triangle and edge
+#: (:meth:`SelfCollision._bloated`; measured on crumpled cloths: 1 keeps the refreshes
+#: at 80 x 80 and builds at 40 x 40 and 160 x 160, where a refreshed list's extra live
+#: pairs, 2-4x those after a build, cost more than the builds; 3.5, from ~280 ns a
+#: scanned element against ~80 ns a live pair, kept refreshing at 160 x 160: 1.8-2.0x
+#: extra instead of 1.2-1.3x)
+LIVE_PER_ELEMENT = 1.0
 
 
 @kernel(inline='always')
@@ -189,10 +225,14 @@ def _hash(ix, iy, iz, mask):
 
 
 @kernel()
-def _bucket_sort(p, cell, mask):
-    """Points p (k,3) sorted by the hash of their cell: (order, start (mask+2,), cells
-    (k,3))."""
+def _bucket_sort(p, cell):
+    """Points p (k,3) sorted by the hash of their cell into a table of :data:`HASH_LOAD`
+    buckets per point (a power of two): (order, start (mask+2,), cells (k,3), mask)."""
     k = p.shape[0]
+    size = 64
+    while size < HASH_LOAD * k:
+        size *= 2
+    mask = size - 1
     cells = np.empty((k, 3), np.int64)
     count = np.zeros(mask + 2, np.int64)
     for i in range(k):
@@ -211,9 +251,12 @@ def _bucket_sort(p, cell, mask):
         h = _hash(cells[i, 0], cells[i, 1], cells[i, 2], mask)
         order[fill[h]] = i
         fill[h] += 1
-    return order, count, cells
+    return order, count, cells, mask
 
 
+#: buckets of the spatial hash per point hashed (:func:`_bucket_sort`): a cell holds
+#: several points, so most buckets hold one cell or none, and a small table stays in cache
+HASH_LOAD = 1.0
 #: the candidate build's parallel loops: blocks of this many triangles or edges ...
 BUILD_BLOCK = 64
 #: ... dealt in turn to this many slabs (block b to slab b % BUILD_SLABS), so that every
@@ -221,15 +264,34 @@ BUILD_BLOCK = 64
 BUILD_SLABS = 8
 
 
+@kernel(inline='always')
+def _vt_pair(i, t, a, b, c, x, rest, r2, th2, out, outd, pos, end):
+    """Vertex i and triangle t = (a, b, c) as a candidate when they are within the radius
+    at x but not within th at rest; returns the next row."""
+    dd = point_triangle_sq(x[i, 0], x[i, 1], x[i, 2], x[a], x[b], x[c])[0]
+    if dd >= r2:
+        return pos
+    if point_triangle_sq(rest[i, 0], rest[i, 1], rest[i, 2], rest[a], rest[b],
+                         rest[c])[0] < th2:
+        return pos
+    if pos < end:
+        out[pos, 0] = i
+        out[pos, 1] = t
+        outd[pos] = math.sqrt(dd)
+    return pos + 1
+
+
 @kernel()
-def _vt_block(t0, t1, x, rest, faces, radius, th, cell, mask, order, start, cells, out,
-              outd, pos, end):
-    """The vertex-triangle candidates of triangles t0..t1-1 (:func:`build_candidates`),
-    written from row ``pos`` of ``out`` / ``outd`` while below row ``end``; returns the
-    row after the last (counted on beyond ``end``: the slab was too short)."""
+def _vt_block(s0, s1, tris, x, rest, faces, radius, th, cell, mask, order, start, cells,
+              out, outd, pos, end):
+    """The vertex-triangle candidates of triangles ``tris[s0:s1]`` with every vertex
+    (:func:`scan_candidates`), written from row ``pos`` of ``out`` / ``outd`` while below
+    row ``end``; returns the row after the last (counted on beyond ``end``: the slab was
+    too short)."""
     r2 = radius * radius
     th2 = th * th
-    for t in range(t0, t1):
+    for s in range(s0, s1):
+        t = tris[s]
         a = faces[t, 0]
         b = faces[t, 1]
         c = faces[t, 2]
@@ -252,29 +314,63 @@ def _vt_block(t0, t1, x, rest, faces, radius, th, cell, mask, order, start, cell
                         if (x[i, 0] < lo0 or x[i, 0] > hi0 or x[i, 1] < lo1
                                 or x[i, 1] > hi1 or x[i, 2] < lo2 or x[i, 2] > hi2):
                             continue
-                        dd = point_triangle_sq(x[i, 0], x[i, 1], x[i, 2], x[a], x[b],
-                                               x[c])[0]
-                        if dd >= r2:
-                            continue
-                        dr = point_triangle_sq(rest[i, 0], rest[i, 1], rest[i, 2], rest[a],
-                                               rest[b], rest[c])[0]
-                        if dr < th2:
-                            continue
-                        if pos < end:
-                            out[pos, 0] = i
-                            out[pos, 1] = t
-                            outd[pos] = math.sqrt(dd)
-                        pos += 1
+                        pos = _vt_pair(i, t, a, b, c, x, rest, r2, th2, out, outd, pos, end)
     return pos
 
 
 @kernel()
-def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, order, start,
-              cells, out, outd, pos, end):
-    """The edge-edge candidates (e, f), f > e, of edges e0..e1-1, as :func:`_vt_block`."""
+def _tv_block(s0, s1, verts, x, rest, faces, tfresh, first, fstart, reach, radius, th, cell,
+              mask, order, start, cells, out, outd, pos, end):
+    """The vertex-triangle candidates of vertices ``verts[s0:s1]`` with the triangles not
+    marked in ``tfresh`` (:func:`scan_candidates`), as :func:`_vt_block`: a triangle
+    within ``radius`` of vertex i has every vertex within ``reach`` (radius and its
+    longest edge) of it, so it is found once, through its first vertex
+    (``first[fstart[j]:fstart[j + 1]]``: the triangles whose first vertex is j) among the
+    vertices in the cells of i's box grown by ``reach``."""
     r2 = radius * radius
     th2 = th * th
-    for e in range(e0, e1):
+    for s in range(s0, s1):
+        i = verts[s]
+        for cx in range(int(math.floor((x[i, 0] - reach) / cell)),
+                        int(math.floor((x[i, 0] + reach) / cell)) + 1):
+            for cy in range(int(math.floor((x[i, 1] - reach) / cell)),
+                            int(math.floor((x[i, 1] + reach) / cell)) + 1):
+                for cz in range(int(math.floor((x[i, 2] - reach) / cell)),
+                                int(math.floor((x[i, 2] + reach) / cell)) + 1):
+                    h = _hash(cx, cy, cz, mask)
+                    for q in range(start[h], start[h + 1]):
+                        j = order[q]
+                        if fstart[j] == fstart[j + 1]:
+                            continue
+                        if cells[j, 0] != cx or cells[j, 1] != cy or cells[j, 2] != cz:
+                            continue
+                        if (abs(x[i, 0] - x[j, 0]) > reach or abs(x[i, 1] - x[j, 1]) > reach
+                                or abs(x[i, 2] - x[j, 2]) > reach):
+                            continue
+                        for u in range(fstart[j], fstart[j + 1]):
+                            t = first[u]
+                            if tfresh[t]:
+                                continue
+                            a = faces[t, 0]
+                            b = faces[t, 1]
+                            c = faces[t, 2]
+                            if i == a or i == b or i == c:
+                                continue
+                            pos = _vt_pair(i, t, a, b, c, x, rest, r2, th2, out, outd, pos,
+                                           end)
+    return pos
+
+
+@kernel()
+def _ee_block(s0, s1, eds, efresh, x, rest, edges, mid, half, hmax, radius, th, cell, mask,
+              order, start, cells, out, outd, pos, end):
+    """The edge-edge candidates of edges ``eds[s0:s1]`` with every other edge, a pair of
+    two edges marked in ``efresh`` once (:func:`scan_candidates`), written as (lower,
+    higher) index, as :func:`_vt_block`."""
+    r2 = radius * radius
+    th2 = th * th
+    for s in range(s0, s1):
+        e = eds[s]
         a0 = edges[e, 0]
         a1 = edges[e, 1]
         # the edge's box grown by radius (b_lo, b_hi), and by the longest half edge too
@@ -293,7 +389,7 @@ def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, o
                     h = _hash(cx, cy, cz, mask)
                     for q in range(start[h], start[h + 1]):
                         f = order[q]
-                        if f <= e:
+                        if f == e or (f < e and efresh[f]):
                             continue
                         if cells[f, 0] != cx or cells[f, 1] != cy or cells[f, 2] != cz:
                             continue
@@ -313,14 +409,18 @@ def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, o
                                 or min(x[c0, 2], x[c1, 2]) > b_hi2
                                 or max(x[c0, 2], x[c1, 2]) < b_lo2):
                             continue
-                        dd = segment_segment(x[a0], x[a1], x[c0], x[c1])[0]
+                        # the lower edge first: the same bits as the full build's
+                        if e < f:
+                            dd = segment_segment(x[a0], x[a1], x[c0], x[c1])[0]
+                        else:
+                            dd = segment_segment(x[c0], x[c1], x[a0], x[a1])[0]
                         if dd >= r2:
                             continue
                         if segment_segment(rest[a0], rest[a1], rest[c0], rest[c1])[0] < th2:
                             continue
                         if pos < end:
-                            out[pos, 0] = e
-                            out[pos, 1] = f
+                            out[pos, 0] = min(e, f)
+                            out[pos, 1] = max(e, f)
                             outd[pos] = math.sqrt(dd)
                         pos += 1
     return pos
@@ -328,9 +428,8 @@ def _ee_block(e0, e1, x, rest, edges, mid, half, hmax, radius, th, cell, mask, o
 
 @kernel(inline='always')
 def _slabs(items, out):
-    """The scratch of a parallel loop over ``items`` triangles or edges in blocks, into
-    ``out``: (blocks, rows per block (zeros), rows per slab, the slabs' rows and
-    distances)."""
+    """For a parallel loop over ``items`` in blocks into ``out``: (blocks, rows per block
+    (zeros), rows per slab, the slabs' rows and distances)."""
     cap = out.shape[0] // BUILD_SLABS
     nbl = (items + BUILD_BLOCK - 1) // BUILD_BLOCK
     return (nbl, np.zeros(nbl, np.int64), cap, np.empty((BUILD_SLABS * cap, 2), np.int64),
@@ -365,18 +464,30 @@ def _in_order(nblocks, count, tmp, tmpd, cap, out, outd):
 
 
 @kernel(parallel=True)
-def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
-    """The vertex-triangle pairs (i, t) and edge-edge pairs (e, f), e < f, within
-    ``radius`` of each other at x (module docstring: no pair incident at a vertex, none
-    within ``th`` in the rest shape), into ``vt`` and ``ee``, their distances at x into
-    ``vtd`` and ``eed``; returns their counts (a count above an array's length: make it
-    at least that long and call again).
+def scan_candidates(x, rest, faces, edges, radius, th, tris, verts, tfresh, first, fstart,
+                    eds, efresh, vt, ee, vtd, eed):
+    """The candidate pairs within ``radius`` of each other at x (module docstring: no
+    pair incident at a vertex, none within ``th`` in the rest shape) that involve the
+    triangles ``tris``, the vertices ``verts`` or the edges ``eds``, into ``vt`` and
+    ``ee`` (their distances at x into ``vtd`` and ``eed``); returns their counts (a count
+    above an array's length: make it at least that long and call again).
 
-    Both loops run on the threads in blocks of :data:`BUILD_BLOCK` triangles or edges,
-    dealt to :data:`BUILD_SLABS` slabs (each a share of the output's length), and are
-    then put in block order: the same lists, in the same order, as one loop over all."""
-    n = x.shape[0]
-    m = faces.shape[0]
+    * vertex-triangle: every vertex against the triangles ``tris`` (the vertices in the
+      cells of each triangle's box grown by radius), then the vertices ``verts`` against
+      the triangles not marked in ``tfresh`` (those are in ``tris``; through the
+      triangles' first vertices, ``first[fstart[j]:fstart[j + 1]]`` those of vertex j:
+      :func:`first_vertex_lists`);
+    * edge-edge (e, f), e < f: the edges ``eds`` against every other edge (the midpoints
+      in the cells of each edge's box grown by radius and the longest half edge, within
+      the two half lengths + radius of its own midpoint), a pair of two edges marked in
+      ``efresh`` found once.
+
+    All of them (``tris`` and ``eds`` every triangle and edge, ``verts`` empty) is the
+    full build (:func:`build_candidates`); those of the vertices that moved, a partial
+    one (:meth:`SelfCollision._refresh`). Each loop runs on the threads in blocks of
+    :data:`BUILD_BLOCK` triangles, vertices or edges, dealt to :data:`BUILD_SLABS` slabs
+    (each a share of the output's length), and is then put in block order: the same
+    lists, in the same order, as one loop over all."""
     ne = edges.shape[0]
     # edge midpoints and half lengths; cells about one mean edge long
     hmax = 0.0
@@ -394,36 +505,73 @@ def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
         hmax = max(hmax, half[e])
         hsum += half[e]
     cell = 2.0 * hsum / max(ne, 1) + radius
-    size = 1
-    while size < 2 * max(n, ne):
-        size *= 2
-    mask = size - 1
-    # vertex-triangle: the vertices in the cells of each triangle's box grown by radius
-    order, start, cells = _bucket_sort(x, cell, mask)
-    nbl, count, cap, tmp, tmpd = _slabs(m, vt)
+    # vertex-triangle, 1: every vertex against the triangles tris
+    order, start, cells, mask = _bucket_sort(x, cell)
+    nt = tris.shape[0]
+    nbl, count, cap, tmp, tmpd = _slabs(nt, vt)
     for sl in nb.prange(BUILD_SLABS):
         pos = sl * cap
         for b in range(sl, nbl, BUILD_SLABS):
-            end = _vt_block(b * BUILD_BLOCK, min(m, (b + 1) * BUILD_BLOCK), x, rest, faces,
-                            radius, th, cell, mask, order, start, cells, tmp, tmpd, pos,
-                            (sl + 1) * cap)
+            end = _vt_block(b * BUILD_BLOCK, min(nt, (b + 1) * BUILD_BLOCK), tris, x, rest,
+                            faces, radius, th, cell, mask, order, start, cells, tmp, tmpd,
+                            pos, (sl + 1) * cap)
             count[b] = end - pos
             pos = end
     nvt = _in_order(nbl, count, tmp, tmpd, cap, vt, vtd)
-    # edge-edge: the midpoints in the cells of each edge's box grown by radius and the
-    # longest half edge, within the two half lengths + radius of its own midpoint
-    order, start, cells = _bucket_sort(mid, cell, mask)
-    nbl, count, cap, tmp, tmpd = _slabs(ne, ee)
+    # vertex-triangle, 2: the vertices verts against the triangles not in tris
+    nv = verts.shape[0]
+    if nv > 0 and nvt <= vt.shape[0]:
+        rest_vt = vt[nvt:]
+        rest_vtd = vtd[nvt:]
+        nbl, count, cap, tmp, tmpd = _slabs(nv, rest_vt)
+        for sl in nb.prange(BUILD_SLABS):
+            pos = sl * cap
+            for b in range(sl, nbl, BUILD_SLABS):
+                end = _tv_block(b * BUILD_BLOCK, min(nv, (b + 1) * BUILD_BLOCK), verts, x,
+                                rest, faces, tfresh, first, fstart, radius + 2.0 * hmax,
+                                radius, th, cell, mask, order, start, cells, tmp, tmpd, pos,
+                                (sl + 1) * cap)
+                count[b] = end - pos
+                pos = end
+        nvt += _in_order(nbl, count, tmp, tmpd, cap, rest_vt, rest_vtd)
+    # edge-edge: the edges eds against every other edge
+    order, start, cells, mask = _bucket_sort(mid, cell)
+    nd = eds.shape[0]
+    nbl, count, cap, tmp, tmpd = _slabs(nd, ee)
     for sl in nb.prange(BUILD_SLABS):
         pos = sl * cap
         for b in range(sl, nbl, BUILD_SLABS):
-            end = _ee_block(b * BUILD_BLOCK, min(ne, (b + 1) * BUILD_BLOCK), x, rest, edges,
-                            mid, half, hmax, radius, th, cell, mask, order, start, cells,
-                            tmp, tmpd, pos, (sl + 1) * cap)
+            end = _ee_block(b * BUILD_BLOCK, min(nd, (b + 1) * BUILD_BLOCK), eds, efresh, x,
+                            rest, edges, mid, half, hmax, radius, th, cell, mask, order,
+                            start, cells, tmp, tmpd, pos, (sl + 1) * cap)
             count[b] = end - pos
             pos = end
     nee = _in_order(nbl, count, tmp, tmpd, cap, ee, eed)
     return nvt, nee
+
+
+def build_candidates(x, rest, faces, edges, radius, th, vt, ee, vtd, eed):
+    """Every vertex-triangle pair (i, t) and edge-edge pair (e, f), e < f, within
+    ``radius`` of each other at x (module docstring: no pair incident at a vertex, none
+    within ``th`` in the rest shape), into ``vt`` and ``ee``, their distances at x into
+    ``vtd`` and ``eed``; returns their counts (a count above an array's length: make it
+    at least that long and call again). :func:`scan_candidates` over all triangles and
+    edges."""
+    none = np.zeros(0, np.int64)
+    return scan_candidates(x, rest, faces, edges, radius, th,
+                           np.arange(len(faces), dtype=np.int64), none,
+                           np.ones(len(faces), np.bool_), none, np.zeros(len(x) + 1, np.int64),
+                           np.arange(len(edges), dtype=np.int64), np.ones(len(edges), np.bool_),
+                           vt, ee, vtd, eed)
+
+
+def first_vertex_lists(faces, n):
+    """(first, fstart): the triangles whose first vertex is j are
+    ``first[fstart[j]:fstart[j + 1]]`` (:func:`scan_candidates`), for n vertices."""
+    first = np.argsort(faces[:, 0], kind='stable').astype(np.int64)
+    fstart = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(faces[:, 0], minlength=n), out=fstart[1:])
+    return first, fstart
 
 
 @kernel(inline='always')
@@ -717,11 +865,9 @@ def respond(x, x0, v, inv, mass, gi, gw, gn, gd, go, g0, npair, th, mu, dt, sep,
     stats[4] = closest
 
 
-@kernel()
-def _displacement(x, ref, out):
-    """out[i] = |(x_i - ref_i) - mean_j (x_j - ref_j)|: how far vertex i moved from ref
-    relative to the others (a rigid translation moves no pair; module docstring);
-    returns the largest."""
+@kernel(inline='always')
+def _mean_shift(x, ref):
+    """mean_j (x_j - ref_j), as three floats."""
     n = x.shape[0]
     c0 = 0.0
     c1 = 0.0
@@ -730,11 +876,17 @@ def _displacement(x, ref, out):
         c0 += x[i, 0] - ref[i, 0]
         c1 += x[i, 1] - ref[i, 1]
         c2 += x[i, 2] - ref[i, 2]
-    c0 /= n
-    c1 /= n
-    c2 /= n
+    return c0 / n, c1 / n, c2 / n
+
+
+@kernel()
+def _displacement(x, ref, out):
+    """out[i] = |(x_i - ref_i) - mean_j (x_j - ref_j)|: how far vertex i moved from ref
+    relative to the others (a rigid translation moves no pair; module docstring);
+    returns the largest."""
+    c0, c1, c2 = _mean_shift(x, ref)
     best = 0.0
-    for i in range(n):
+    for i in range(x.shape[0]):
         out[i] = math.sqrt((x[i, 0] - ref[i, 0] - c0) ** 2 + (x[i, 1] - ref[i, 1] - c1) ** 2
                            + (x[i, 2] - ref[i, 2] - c2) ** 2)
         best = max(best, out[i])
@@ -792,6 +944,68 @@ def _room(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, half_skin):
              + max(moved[edges[f, 0]], moved[edges[f, 1]]))
         out = min(out, 0.5 * (eed[q] - th - r))
     return out
+
+
+@kernel()
+def _renew(x0, xb, moved, step, skin, most, fresh):
+    """The vertices of a partial refresh (:meth:`SelfCollision._refresh`), marked in
+    ``fresh``: those that moved more than :data:`REFRESH` of the skin since their
+    reference ``xb`` (``moved``: relative to the others, :func:`_displacement`), and those
+    that at the speed of this step (``step``: its relative displacement) run out of room
+    (half the skin) before the fastest renewed vertex would again at its own. When they
+    are at most ``most``, their reference moves to where the step began, ``x0``, less the
+    mean displacement since the references (so that there they have moved none relative
+    to the others). Returns how many they are."""
+    n = x0.shape[0]
+    fast = 0.0
+    for i in range(n):
+        fast = max(fast, step[i])
+    horizon = 0.5 * skin / max(fast, 1e-300)     # [steps]
+    k = 0
+    for i in range(n):
+        fresh[i] = (moved[i] > REFRESH * skin
+                    or moved[i] + horizon * step[i] > 0.5 * skin)
+        k += fresh[i]
+    if k > most:
+        return k
+    c0, c1, c2 = _mean_shift(x0, xb)
+    for i in range(n):
+        if fresh[i]:
+            xb[i, 0] = x0[i, 0] - c0
+            xb[i, 1] = x0[i, 1] - c1
+            xb[i, 2] = x0[i, 2] - c2
+    return k
+
+
+@kernel(inline='always')
+def _compact(pairs, d, count, drop0, drop1):
+    """Keeps, in order at the front, the first ``count`` pairs (rows of ``pairs``, with
+    ``d``) whose first member is not marked in ``drop0`` nor second in ``drop1``;
+    returns how many."""
+    k = 0
+    for p in range(count):
+        if drop0[pairs[p, 0]] or drop1[pairs[p, 1]]:
+            continue
+        pairs[k, 0] = pairs[p, 0]
+        pairs[k, 1] = pairs[p, 1]
+        d[k] = d[p]
+        k += 1
+    return k
+
+
+@kernel()
+def _keep_untouched(fresh, faces, edges, vt, vtd, nvt, ee, eed, nee, tfresh, efresh):
+    """Of the candidates, keeps (in order, at the front) those with no vertex marked in
+    ``fresh``, marks the triangles and edges that hold one in ``tfresh`` and ``efresh``;
+    returns (candidates kept: vertex-triangle, edge-edge; the marked triangles, vertices
+    and edges)."""
+    for t in range(faces.shape[0]):
+        tfresh[t] = fresh[faces[t, 0]] or fresh[faces[t, 1]] or fresh[faces[t, 2]]
+    for e in range(edges.shape[0]):
+        efresh[e] = fresh[edges[e, 0]] or fresh[edges[e, 1]]
+    k = _compact(vt, vtd, nvt, fresh, tfresh)
+    j = _compact(ee, eed, nee, efresh, efresh)
+    return k, j, np.nonzero(tfresh)[0], np.nonzero(fresh)[0], np.nonzero(efresh)[0]
 
 
 @kernel()
@@ -904,6 +1118,13 @@ class SelfCollision:
         self.speeds = np.zeros(n)
         self.overrun_speed = 0.0                 # [m/s] (overran)
         self.built_th = 0.0                      # the thickness of the last build
+        self.refreshes = 0                       # partial refreshes (_refresh)
+        self.live_built = -1                     # live pairs on the first step of a build
+        self.since = 0                           # steps since the last build or refresh
+        self.fresh = np.zeros(n, np.bool_)
+        self.tfresh = np.zeros(len(self.faces), np.bool_)
+        self.efresh = np.zeros(len(self.edges), np.bool_)
+        self.first, self.fstart = first_vertex_lists(self.faces, n)
 
     def _alloc(self, p):
         self.live = np.zeros(p, np.int64)
@@ -971,6 +1192,51 @@ class SelfCollision:
         self.skin = skin
         self.built_th = th
         self.builds += 1
+        self.live_built = -1
+        self.since = 0
+
+    def _bloated(self) -> bool:
+        """Whether a full build now costs less than what the live pairs added since the
+        last one cost over the last run of the list (:data:`LIVE_PER_ELEMENT`): the
+        vertices a partial refresh leaves drift up to :data:`REFRESH` of the skin, and
+        every step checks every pair their drift may have brought within th."""
+        extra = (self.nlive - self.live_built) * self.since
+        return extra > LIVE_PER_ELEMENT * (len(self.faces) + len(self.edges))
+
+    def _refresh(self, x0: np.ndarray, x: np.ndarray, th: float) -> bool:
+        """A partial refresh of the list (module docstring), where the step began (``x0``;
+        ``x``: where it ended, ``moved``: the displacement there since the references):
+        the vertices that moved more than :data:`REFRESH` of the skin or would soon run
+        out of room (:func:`_renew`) take ``x0`` as their reference, and every candidate
+        that holds one of them is found again there.
+        Returns False, and the list must be built anew, when they are more than
+        :data:`REFRESH_MOST` of the vertices or some vertex is still more than half the
+        skin from its reference."""
+        if _renew(x0, self.xb, self.moved, self.step_moved, self.skin,
+                  REFRESH_MOST * len(x0), self.fresh) > REFRESH_MOST * len(x0):
+            return False
+        kv, ke, tris, verts, eds = _keep_untouched(
+            self.fresh, self.faces, self.edges, self.vt, self.vtd, self.nvt, self.ee,
+            self.eed, self.nee, self.tfresh, self.efresh)
+        while True:
+            nv, ne = scan_candidates(self.xb, self.rest, self.faces, self.edges,
+                                     th + self.skin, th, tris, verts, self.tfresh,
+                                     self.first, self.fstart, eds, self.efresh, self.vt[kv:],
+                                     self.ee[ke:], self.vtd[kv:], self.eed[ke:])
+            if kv + nv <= len(self.vt) and ke + ne <= len(self.ee):
+                break
+            if kv + nv > len(self.vt):
+                self.vt = np.concatenate([self.vt[:kv], np.zeros((2 * (kv + nv), 2), np.int64)])
+                self.vtd = np.concatenate([self.vtd[:kv], np.zeros(2 * (kv + nv))])
+            if ke + ne > len(self.ee):
+                self.ee = np.concatenate([self.ee[:ke], np.zeros((2 * (ke + ne), 2), np.int64)])
+                self.eed = np.concatenate([self.eed[:ke], np.zeros(2 * (ke + ne))])
+        self.nvt, self.nee = kv + nv, ke + ne
+        if len(self.gd) < self.nvt + self.nee:
+            self._alloc(2 * (self.nvt + self.nee))
+        self.refreshes += 1
+        self.since = 0
+        return _displacement(x, self.xb, self.moved) <= 0.5 * self.skin
 
     def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
         """The live pairs' constraints linearised at ``start`` (the step's start x0 the
@@ -997,14 +1263,21 @@ class SelfCollision:
         th = float(control.contact_params[0])
         x = state.x
         step = _displacement(x, self.x0, self.step_moved)
+        skin = max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
+                   min(STEPS_PER_BUILD * step, self.edge))
         if (self.xb is None or th != self.built_th
-                or _displacement(x, self.xb, self.moved) > 0.5 * self.skin):
-            self._build(self.x0, th, max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
-                                         min(STEPS_PER_BUILD * step, self.edge)))
+                or (_displacement(x, self.xb, self.moved) > 0.5 * self.skin
+                    and not (REFRESH_SKIN * self.skin <= skin <= self.skin
+                             and not self._bloated()
+                             and self._refresh(self.x0, x, th)))):
+            self._build(self.x0, th, skin)
             self.moved[:] = self.step_moved         # built where this step began
         self.nlive = _select(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed,
                              self.nee, self.faces, th, self.moved, self.step_moved,
                              self.reach, self.live)
+        self.since += 1
+        if self.live_built < 0:
+            self.live_built = self.nlive      # the first step on a new list
         diss = 0.0
         if self.nlive:
             _inverse_mass(coeff.mass, control.pinned, self.inv)
@@ -1038,18 +1311,18 @@ class SelfCollision:
         """The last step's self-contact: candidates (vertex-triangle, edge-edge), the
         live ones (that could touch this step), pairs that acted, rounds and sweeps of
         the projection, pairs left short, the closest gap [m] along the live pairs'
-        normals, and the candidate builds so far."""
+        normals, and the candidate builds and partial refreshes so far."""
         s = self.stats
         return {'candidates': int(self.nvt + self.nee), 'live': int(self.nlive),
                 'active': int(s[0]), 'rounds': int(s[1]), 'sweeps': int(s[2]),
                 'left_short': int(s[3]), 'closest_gap': float(s[4]),
-                'builds': int(self.builds)}
+                'builds': int(self.builds), 'refreshes': int(self.refreshes)}
 
 
 def warm() -> None:
     """Compile every kernel of this module (into numba's cache) on two triangles, one
     falling onto the other just above a plane: the candidates, the live pairs, the staged
-    response with an obstacle and the ledger."""
+    response with an obstacle, the ledger and a partial refresh."""
     from types import SimpleNamespace
     from .contact import WIDTH
     from .mesh import ClothMesh
@@ -1069,3 +1342,6 @@ def warm() -> None:
     x += 0.004 * v                      # 2 mm relative: a staged response (STAGE)
     sc.after_step(State(x, v, np.zeros(2)), control, SimpleNamespace(mass=np.full(6, 0.01)),
                   0.002)
+    sc.moved[:] = 0.0
+    sc.moved[3] = sc.skin                 # one vertex ran out of room: a partial refresh
+    sc._refresh(x, x, sc.built_th)

@@ -361,10 +361,11 @@ def part_contact(sizes, pairs: int = 9, batch_s: float = 0.1):
         print(row, flush=True)
 
 
-def paired_ms(sims, pairs: int = 9, batch_s: float = 0.1):
+def paired_ms(sims, pairs: int = 9, batch_s: float = 0.1, warmup_s: float = 0.3):
     """(ms per step of sims[0], of sims[1], median ratio 1 / 0) from ``pairs`` pairs of
-    back-to-back batches, the order alternating (a shared host's load hits both)."""
-    ks = [_batch_size(sim.step, 0.3, batch_s) for sim in sims]
+    back-to-back batches, the order alternating (a shared host's load hits both), after
+    ``warmup_s`` of each."""
+    ks = [_batch_size(sim.step, warmup_s, batch_s) for sim in sims]
     ratios, per = [], [[], []]
     for p in range(pairs):
         got = [0.0, 0.0]
@@ -492,23 +493,32 @@ def crumpled_scenes(n: int, seconds: float = CRUMPLE_S):
     return off, on
 
 
-def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1):
+def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1,
+              warmup_s: float = 0.3):
     print('\n## self-collision: a crumpled cloth on the ground\n')
     print(f'The shipped cloth dropped nearly upright from 0.5 m with self-collision on, '
           f'after {CRUMPLE_S} s of falling and folding (it lies crumpled on the ground: the '
           'issue\'s scene), then ms per step with self-collision on and off from that '
           'state, in alternating back-to-back batches, median of the ratios. "extra / '
-          'step": what self-collision adds over the step without it (target <= 1).\n')
+          'step": what self-collision adds over the step without it (target <= 1 at 80, '
+          'growing as n log n or slower); '
+          '"builds": full builds of the candidate list in the batches, "refreshes": '
+          'partial ones around the vertices that moved.\n')
     _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
-            'extra / step', 'candidates', 'live', 'pairs', 'rebuilds'))
+            'extra / step', 'candidates', 'live', 'pairs', 'builds', 'refreshes'))
+    nv, extra = [], []
     for n in crumpled:
         sims = crumpled_scenes(n)
-        b0 = sims[1].self_contact_state()['builds']
-        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        s0 = sims[1].self_contact_state()
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s, warmup_s)
         st = sims[1].self_contact_state()
         print(f'| {n} | {sims[0].n_vertices} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
               f'{ratio - 1:.2f} | {st["candidates"]} | {st["live"]} | {st["active"]} | '
-              f'{st["builds"] - b0} |', flush=True)
+              f'{st["builds"] - s0["builds"]} | {st["refreshes"] - s0["refreshes"]} |',
+              flush=True)
+        nv.append(sims[0].n_vertices)
+        extra.append(max((ratio - 1.0) * ms0, 1e-9))
+    _growth(nv, extra)
     print(f'\n## self-collision: the shipped cloth folded in {PLEATS} layers on the '
           'ground\n')
     print('ms per step with self-collision on and off (the same folded cloth, settled '
@@ -519,17 +529,23 @@ def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1):
           'pairs within the thickness after the batches. The growth of the extra cost is '
           'fitted as vertices^k over the sizes.\n')
     _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
-            'extra us/vertex', 'pairs', 'rebuilds'))
+            'extra us/vertex', 'pairs', 'builds', 'refreshes'))
     nv, extra = [], []
     for n in sizes:
         sims = (folded_scene(n, False), folded_scene(n, True))
-        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s)
+        ms0, ms1, ratio = paired_ms(sims, pairs, batch_s, warmup_s)
         st = sims[1].self_contact_state()
         v = sims[0].n_vertices
         nv.append(v)
         extra.append(max(ms1 - ms0, 1e-9))
         print(f'| {n} | {v} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
-              f'{1e3 * (ms1 - ms0) / v:.3f} | {st["active"]} | {st["builds"]} |', flush=True)
+              f'{1e3 * (ms1 - ms0) / v:.3f} | {st["active"]} | {st["builds"]} | '
+              f'{st["refreshes"]} |', flush=True)
+    _growth(nv, extra)
+
+
+def _growth(nv, extra) -> None:
+    """Prints the fit of the extra cost [ms a step] as vertices^k over the sizes."""
     if len(nv) > 1:
         k = np.polyfit(np.log(nv), np.log(extra), 1)[0]
         print(f'\nextra cost ~ vertices^{k:.2f} from {nv[0]} to {nv[-1]} vertices '
@@ -765,7 +781,8 @@ def main(argv=None):
                     help='N for the self-collision part\'s folded stack (none: skip the '
                     'part)')
     ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
-                    help='N for the self-collision part\'s crumpled cloth')
+                    help='N for the self-collision part\'s crumpled cloth (160 adds ~10 '
+                    'minutes: its 1.5 s drop); the extra cost\'s growth is fitted over them')
     a = ap.parse_args(argv)
     print(f'# machine: {machine()}; python {platform.python_version()}')
     for name in a.scenes:
