@@ -141,8 +141,10 @@ class ImplicitSolver:
         self._csc = None
         self._pinv = None
         self._pinv_key = None
-        #: CG iterations above which the factored preconditioner is rebuilt
+        #: CG iterations above which the factored preconditioner is rebuilt, when they
+        #: are also more than twice what it took when fresh (``_fresh_cg``)
         self.refresh = 8
+        self._fresh_cg = None
         self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
         self._contacts = ObstacleConstraints(n)
 
@@ -364,6 +366,7 @@ class ImplicitSolver:
             if self._pinv is None or self._pinv_key != key:
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
                 self._pinv_key = key
+                self._fresh_cg = None
                 rep.factorizations += 1
             pinv = self._pinv
             if con is not None and con.active:
@@ -373,8 +376,15 @@ class ImplicitSolver:
                     return filt(base(filt(q.copy())))
             eta = min(0.5, np.sqrt(_norm(r) / r0))
             p, used = self._cg(xk, f, r, diag, drag_dt, pinv, filt, coeff, eta)
-            if used > self.refresh:              # P has drifted from A: factor it again
+            if self._fresh_cg is None:
+                self._fresh_cg = used
+            elif used > max(self.refresh, 2 * self._fresh_cg):
+                # P has drifted from A: factor it again. Not merely because CG needs many
+                # iterations: P leaves out the bending's off-diagonal blocks, so on a fine
+                # mesh even a fresh P needs ~17 (issue 6, N = 80), and a factorization
+                # there costs ~10 of them
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
+                self._fresh_cg = None
                 rep.factorizations += 1
             rep.cg_iterations += used
             if phi is None:
