@@ -52,7 +52,6 @@ def test_the_step_force_is_minus_the_sum_of_the_term_gradients(name, phi, simd):
     assert np.abs(got - ref).max() <= 1e-12 * np.abs(ref).max()
 
 
-
 @pytest.mark.parametrize('simd', [True, False])
 def test_the_step_force_follows_the_terms_below_the_jet_area_floor(simd):
     """The same on a sheet pressed to 0.05 of its width (test_terms.squeezed): |a_1 x a_2|

@@ -352,7 +352,6 @@ def test_a_cloth_draped_over_a_sphere_lets_its_edges_fall_onto_each_other():
     assert sim.positions[:, 2].min() < -0.15                # the sides hang down
 
 
-
 def test_the_drape_steps_on_from_the_state_where_a_crumpled_stencil_blew_it_up():
     """test/data/drape_pinch.npz: positions and velocities of the drape above at 1.5 s,
     from a run that diverged in the next step (one vertex from 1.8 to 116 m/s). The cloth

@@ -34,7 +34,6 @@ def _rotation(seed=3):
     return q * np.sign(np.linalg.det(q))
 
 
-
 def _assert_gradient_is_the_central_difference(t, model, coeff, x, h=1e-6):
     g = t.gradient(model, coeff, x)
     assert np.abs(g).max() > 0
@@ -46,6 +45,7 @@ def _assert_gradient_is_the_central_difference(t, model, coeff, x, h=1e-6):
             xm[i, k] -= h
             fd[i, k] = (t.energy(model, coeff, xp) - t.energy(model, coeff, xm)) / (2 * h)
     assert np.abs(g - fd).max() <= 1e-6 * np.abs(g).max()
+
 
 @pytest.mark.parametrize('term', sorted(TERMS))
 @pytest.mark.parametrize('name', ['regular', 'irregular', 'icosphere'])
@@ -196,7 +196,6 @@ def test_each_term_scales_with_its_own_constant_only():
         for k, t in TERMS.items():
             want = base[k] * (0.5 if k == term else 1.0)
             assert t.energy(model, coeff, x) == pytest.approx(want, rel=1e-12), (const, k)
-
 
 
 def _area_ratios(model, x):

@@ -382,7 +382,7 @@ class ImplicitSolver:
                 # P has drifted from A: factor it again. Not merely because CG needs many
                 # iterations: P leaves out the bending's off-diagonal blocks, so on a fine
                 # mesh even a fresh P needs ~17 (issue 6, N = 80), and a factorization
-                # there costs ~10 of them
+                # there (~160 ms) costs ~20 of them (~8 ms each)
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
                 self._fresh_cg = None
                 rep.factorizations += 1

@@ -16,7 +16,10 @@ bending gives the first part, coupling the second) has, with ``h_k = dE_i/d(dn_k
     t = (I - gam n n^T) sum_k h_k d_k / s
 
 since ``n`` depends on the positions through ``a_1, a_2`` only (``c = a_1 x a_2``,
-``r = |c|``: ``dn = (I - gam n n^T) dc / s``).
+``r = |c|``: ``dn = (I - gam n n^T) dc / s``). The centre takes minus the
+sum of the others. Four passes over the stencil per vertex (:func:`jet_adjoint`); the
+adjoint is the transpose of the discrete derivative operators, a discrete divergence,
+gathered per vertex through the transposed stencil (:func:`gather`).
 
 The normal's length (:func:`floored_normal`): ``s(r) = r`` (a unit normal, Eq. 13, and
 ``gam = 1``) while the area ratio ``r`` is at least ``f = constants.JET_AREA_FLOOR`` (at rest
@@ -26,10 +29,7 @@ u s / (f r)``. A stencil crumpled inside itself (a pinch, a fold across it) can 
 fitted tangents parallel while every edge keeps its length; a unit normal's derivative
 grows as 1/r there and the explicit step blows up. Below the floor the normal shortens
 instead, so the curvature ``b = n . r_ab`` the jet reports fades where the fit no longer
-sees a surface, and ``1/s <= 2/f``. The centre takes minus the
-sum of the others. Four passes over the stencil per vertex (:func:`jet_adjoint`); the
-adjoint is the transpose of the discrete derivative operators, a discrete divergence,
-gathered per vertex through the transposed stencil (:func:`gather`).
+sees a surface, and ``1/s <= 2/f``.
 
 Hourglass control (part of the bending term, ``constants.JET_STABILIZATION``): a
 least-squares fit cannot see some oscillating patterns, so the energy adds
