@@ -102,12 +102,20 @@ those vertices against the other triangles); the rest of the list stands. A crum
 cloth with a part still moving renews a few percent of its vertices at a time (80 x 80:
 ~3%, 1-3 ms instead of a build's ~9). When more than :data:`REFRESH_MOST` of the
 vertices moved, the thickness changed, or the step needs a skin larger than the list's
-or under :data:`REFRESH_SKIN` of it, the list is built anew; and also when the live
-pairs added since the last build, over the steps since the last refresh, cost more than
-a build (:meth:`SelfCollision._bloated`): the vertices a refresh leaves keep drifting up
-to :data:`REFRESH` of the skin, so more pairs stay live than after a build, which on
-the crumpled 40 x 40 cloth (a build ~2 ms) and 160 x 160 (10-20,000 live pairs instead
-of ~5,000) costs more than the builds the refreshes save.
+or under :data:`REFRESH_SKIN` of it, the list is built anew.
+
+Distances taken again (:meth:`SelfCollision._rebase`): which candidates are live is
+decided from their distances where they were last taken, ``x_d``, less how far their
+vertices have moved since (relative, as above). The bound holds for any per-vertex
+``x_d`` at which the distances were taken, so ``x_d`` need not be the list's references
+``x_b``, which only decide when the list runs out of room. A cloth in motion moves
+every vertex, so the bound loosens for every pair though few come closer: ~40 steps
+after a build of the crumpled 80 x 80 cloth, 2,200 of its 8,600 candidates were live
+against ~450 on the build's first step (and refreshed references drift alike). So the
+distances of all the candidates are taken again where the step began, one pass over
+the list (~0.1 ms at 80 x 80, a build ~9 ms), after every partial refresh and whenever
+the live pairs added since the last time, over the steps since, outnumber the
+candidates (:meth:`SelfCollision._swollen`, :data:`REBASE_LIVE`).
 
 This module imports no ROS package.
 """
@@ -159,13 +167,9 @@ REFRESH = 0.25
 #: candidates, more of them live): then it is built anew
 REFRESH_MOST = 0.25
 REFRESH_SKIN = 0.8
-#: so many live pair-steps cost what a full build costs per triangle and edge
-#: (:meth:`SelfCollision._bloated`; measured on crumpled cloths: 1 keeps the refreshes
-#: at 80 x 80 and builds at 40 x 40 and 160 x 160, where a refreshed list's extra live
-#: pairs, 2-4x those after a build, cost more than the builds; 3.5, from ~280 ns a
-#: scanned element against ~80 ns a live pair, kept refreshing at 160 x 160: 1.8-2.0x
-#: extra instead of 1.2-1.3x)
-LIVE_PER_ELEMENT = 1.0
+#: so many live pair-steps cost what taking every candidate's distance again costs per
+#: candidate (:meth:`SelfCollision._swollen`)
+REBASE_LIVE = 1.0
 
 
 @kernel(inline='always')
@@ -894,14 +898,45 @@ def _displacement(x, ref, out):
 
 
 @kernel()
+def _displacements(x, x0, xb, xd, step, dmoved):
+    """:func:`_displacement` of x from the step's start ``x0`` and from where the
+    candidates' distances were taken, ``xd``, into ``step`` and ``dmoved``; returns their
+    largest and the largest from the list's references ``xb`` (whose own array only a
+    refresh needs)."""
+    c = np.zeros(9)
+    n = x.shape[0]
+    for i in range(n):
+        for k in range(3):
+            c[k] += x[i, k] - x0[i, k]
+            c[3 + k] += x[i, k] - xb[i, k]
+            c[6 + k] += x[i, k] - xd[i, k]
+    c /= n
+    b0 = 0.0
+    b1 = 0.0
+    b2 = 0.0
+    for i in range(n):
+        step[i] = math.sqrt((x[i, 0] - x0[i, 0] - c[0]) ** 2 + (x[i, 1] - x0[i, 1] - c[1]) ** 2
+                            + (x[i, 2] - x0[i, 2] - c[2]) ** 2)
+        moved = ((x[i, 0] - xb[i, 0] - c[3]) ** 2 + (x[i, 1] - xb[i, 1] - c[4]) ** 2
+                 + (x[i, 2] - xb[i, 2] - c[5]) ** 2)
+        dmoved[i] = math.sqrt((x[i, 0] - xd[i, 0] - c[6]) ** 2
+                              + (x[i, 1] - xd[i, 1] - c[7]) ** 2
+                              + (x[i, 2] - xd[i, 2] - c[8]) ** 2)
+        b0 = max(b0, step[i])
+        b1 = max(b1, moved)
+        b2 = max(b2, dmoved[i])
+    return b0, math.sqrt(b1), b2
+
+
+@kernel()
 def _select(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, step, reach, live):
     """The candidates that may come within ``th`` this step, into ``live``; returns
-    their count. Vertex i moved ``moved[i]`` relative to the others since the build and
-    ``step[i]`` in this step (:func:`_displacement`); ``reach[i] = moved[i] + 2 step[i]``
-    bounds how far it got, at any time in the step and after a response (which moves a
-    vertex by no more than the step's own approach), relative to the build's positions.
-    A pair whose distance at the build exceeds ``th`` plus its vertices' reaches is left
-    out."""
+    their count. Vertex i moved ``moved[i]`` relative to the others since the
+    candidates' distances were taken (at ``x_d``: module docstring) and ``step[i]`` in
+    this step (:func:`_displacement`); ``reach[i] = moved[i] + 2 step[i]`` bounds how far
+    it got, at any time in the step and after a response (which moves a vertex by no
+    more than the step's own approach), relative to ``x_d``. A pair whose distance there
+    exceeds ``th`` plus its vertices' reaches is left out."""
     for i in range(reach.shape[0]):
         reach[i] = moved[i] + 2.0 * step[i]
     k = 0
@@ -923,25 +958,44 @@ def _select(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, step, reach, li
     return k
 
 
+@kernel(parallel=True)
+def _distances(x, faces, edges, vt, nvt, ee, nee, vtd, eed):
+    """Every candidate's distance at x, into ``vtd`` and ``eed`` (the same arithmetic as
+    the build's: :func:`_vt_pair`, :func:`_ee_block`), in chunks of :data:`PAIR_CHUNK`."""
+    for c in nb.prange((nvt + PAIR_CHUNK - 1) // PAIR_CHUNK):
+        for p in range(c * PAIR_CHUNK, min(nvt, (c + 1) * PAIR_CHUNK)):
+            i = vt[p, 0]
+            t = vt[p, 1]
+            vtd[p] = math.sqrt(point_triangle_sq(x[i, 0], x[i, 1], x[i, 2], x[faces[t, 0]],
+                                                 x[faces[t, 1]], x[faces[t, 2]])[0])
+    for c in nb.prange((nee + PAIR_CHUNK - 1) // PAIR_CHUNK):
+        for q in range(c * PAIR_CHUNK, min(nee, (c + 1) * PAIR_CHUNK)):
+            e = ee[q, 0]
+            f = ee[q, 1]
+            eed[q] = math.sqrt(segment_segment(x[edges[e, 0]], x[edges[e, 1]],
+                                               x[edges[f, 0]], x[edges[f, 1]])[0])
+
+
 @kernel()
-def _room(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, half_skin):
+def _room(vt, vtd, nvt, edges, ee, eed, nee, faces, th, moved, dmoved, half_skin):
     """How far every vertex may still move relative to the others [m] before some
     candidate pair could come within ``th`` or the list could miss a pair: the least of
-    ``half_skin`` less the largest ``moved`` (the list's own bound: module docstring) and,
-    over the candidates, half of their distance at the build less ``th`` and less how
-    far each side's vertices have moved since (``moved``: :func:`_displacement`)."""
+    ``half_skin`` less the largest ``moved`` (since the list's references: its own bound,
+    module docstring) and, over the candidates, half of their distance less ``th`` and
+    less how far each side's vertices have moved since it was taken (``dmoved``)."""
     out = half_skin
     for i in range(moved.shape[0]):
         out = min(out, half_skin - moved[i])
     for p in range(nvt):
         t = vt[p, 1]
-        r = moved[vt[p, 0]] + max(moved[faces[t, 0]], moved[faces[t, 1]], moved[faces[t, 2]])
+        r = dmoved[vt[p, 0]] + max(dmoved[faces[t, 0]], dmoved[faces[t, 1]],
+                                   dmoved[faces[t, 2]])
         out = min(out, 0.5 * (vtd[p] - th - r))
     for q in range(nee):
         e = ee[q, 0]
         f = ee[q, 1]
-        r = (max(moved[edges[e, 0]], moved[edges[e, 1]])
-             + max(moved[edges[f, 0]], moved[edges[f, 1]]))
+        r = (max(dmoved[edges[e, 0]], dmoved[edges[e, 1]])
+             + max(dmoved[edges[f, 0]], dmoved[edges[f, 1]]))
         out = min(out, 0.5 * (eed[q] - th - r))
     return out
 
@@ -1096,7 +1150,7 @@ class SelfCollision:
         self.vs = np.zeros((n, 3))
         self.xe = np.zeros((n, 3))               # after the first response
         self.xt = np.zeros((n, 3))               # where a staged step's solver ended
-        self.xb = None                          # positions of the last candidate build
+        self.xb = np.zeros((n, 3))              # the list's references (module docstring)
         self.skin = 0.0
         self.vt = np.zeros((max(64, n), 2), np.int64)
         self.ee = np.zeros((max(64, 2 * n), 2), np.int64)
@@ -1108,6 +1162,11 @@ class SelfCollision:
         self._alloc(len(self.vt) + len(self.ee))
         self.moved = np.zeros(n)                # relative displacement since the build
         self.step_moved = np.zeros(n)           # ... and in this step
+        self.xd = np.zeros((n, 3))              # where the candidates' distances were taken
+        self.dmoved = np.zeros(n)               # relative displacement since then
+        self.rebases = 0                        # their distances taken again (_rebase)
+        self.live_based = -1                    # live pairs on the first step after that
+        self.since_based = 0                    # steps since
         self.reach = np.zeros(n)
         self.inv = np.zeros(n)
         self.stats = np.zeros(5)
@@ -1119,8 +1178,6 @@ class SelfCollision:
         self.overrun_speed = 0.0                 # [m/s] (overran)
         self.built_th = 0.0                      # the thickness of the last build
         self.refreshes = 0                       # partial refreshes (_refresh)
-        self.live_built = -1                     # live pairs on the first step of a build
-        self.since = 0                           # steps since the last build or refresh
         self.fresh = np.zeros(n, np.bool_)
         self.tfresh = np.zeros(len(self.faces), np.bool_)
         self.efresh = np.zeros(len(self.edges), np.bool_)
@@ -1149,11 +1206,12 @@ class SelfCollision:
         speed but at least :data:`FREE_SPEED`, covers half the room the list leaves
         (:func:`_room`). :meth:`overran` then checks the call (a cloth can speed up)."""
         self.room = 0.0
-        if self.xb is None or self.nlive or th != self.built_th:
+        if self.builds == 0 or self.nlive or th != self.built_th:
             return 0
         _displacement(x, self.xb, self.moved)
+        _displacement(x, self.xd, self.dmoved)
         room = _room(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed, self.nee,
-                     self.faces, th, self.moved, 0.5 * self.skin)
+                     self.faces, th, self.moved, self.dmoved, 0.5 * self.skin)
         if room <= 0.0:
             return 0
         self.room = room
@@ -1188,30 +1246,43 @@ class SelfCollision:
         self.nvt, self.nee = nvt, nee
         if len(self.gd) < nvt + nee:
             self._alloc(2 * (nvt + nee))
-        self.xb = x.copy()
+        self.xb[:] = x
+        self.xd[:] = x
         self.skin = skin
         self.built_th = th
         self.builds += 1
-        self.live_built = -1
-        self.since = 0
+        self.live_based = -1
+        self.since_based = 0
 
-    def _bloated(self) -> bool:
-        """Whether a full build now costs less than what the live pairs added since the
-        last one cost over the last run of the list (:data:`LIVE_PER_ELEMENT`): the
-        vertices a partial refresh leaves drift up to :data:`REFRESH` of the skin, and
-        every step checks every pair their drift may have brought within th."""
-        extra = (self.nlive - self.live_built) * self.since
-        return extra > LIVE_PER_ELEMENT * (len(self.faces) + len(self.edges))
+    def _swollen(self) -> bool:
+        """Whether taking every candidate's distance again now costs less than what the
+        live pairs added since the distances were last taken cost over those steps
+        (:data:`REBASE_LIVE`): each step checks every pair whose vertices' displacement
+        since then may have brought it within th, and a cloth in motion moves every
+        vertex, so the live pairs grow though few pairs come closer."""
+        extra = (self.nlive - self.live_based) * self.since_based
+        return extra > REBASE_LIVE * (self.nvt + self.nee)
+
+    def _rebase(self, x0: np.ndarray) -> None:
+        """Every candidate's distance taken again at ``x0`` (where the step began): the
+        live pairs are then those that can come within th from there."""
+        self.xd[:] = x0
+        _distances(x0, self.faces, self.edges, self.vt, self.nvt, self.ee, self.nee,
+                   self.vtd, self.eed)
+        self.rebases += 1
+        self.live_based = -1
+        self.since_based = 0
 
     def _refresh(self, x0: np.ndarray, x: np.ndarray, th: float) -> bool:
         """A partial refresh of the list (module docstring), where the step began (``x0``;
-        ``x``: where it ended, ``moved``: the displacement there since the references):
-        the vertices that moved more than :data:`REFRESH` of the skin or would soon run
-        out of room (:func:`_renew`) take ``x0`` as their reference, and every candidate
-        that holds one of them is found again there.
+        ``x``: where it ended): the vertices that moved more than :data:`REFRESH` of the
+        skin since their references or would soon run out of room (:func:`_renew`) take
+        ``x0`` as their reference, and every candidate that holds one of them is found
+        again there.
         Returns False, and the list must be built anew, when they are more than
         :data:`REFRESH_MOST` of the vertices or some vertex is still more than half the
         skin from its reference."""
+        _displacement(x, self.xb, self.moved)
         if _renew(x0, self.xb, self.moved, self.step_moved, self.skin,
                   REFRESH_MOST * len(x0), self.fresh) > REFRESH_MOST * len(x0):
             return False
@@ -1235,7 +1306,6 @@ class SelfCollision:
         if len(self.gd) < self.nvt + self.nee:
             self._alloc(2 * (self.nvt + self.nee))
         self.refreshes += 1
-        self.since = 0
         return _displacement(x, self.xb, self.moved) <= 0.5 * self.skin
 
     def _respond(self, start, x, v, control, mass, th, mu, dt) -> None:
@@ -1262,22 +1332,27 @@ class SelfCollision:
     def after_step(self, state, control, coeff, dt: float) -> float:
         th = float(control.contact_params[0])
         x = state.x
-        step = _displacement(x, self.x0, self.step_moved)
+        step, far, _ = _displacements(x, self.x0, self.xb, self.xd, self.step_moved,
+                                      self.dmoved)
         skin = max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
                    min(STEPS_PER_BUILD * step, self.edge))
-        if (self.xb is None or th != self.built_th
-                or (_displacement(x, self.xb, self.moved) > 0.5 * self.skin
-                    and not (REFRESH_SKIN * self.skin <= skin <= self.skin
-                             and not self._bloated()
-                             and self._refresh(self.x0, x, th)))):
+        out = self.builds == 0 or th != self.built_th or far > 0.5 * self.skin
+        if out and not (self.builds and th == self.built_th
+                        and REFRESH_SKIN * self.skin <= skin <= self.skin
+                        and self._refresh(self.x0, x, th)):
             self._build(self.x0, th, skin)
-            self.moved[:] = self.step_moved         # built where this step began
+            self.dmoved[:] = self.step_moved        # built where this step began
+        elif out or self._swollen():
+            # refreshed (the new candidates' distances are at their references) or
+            # swollen: every distance taken again where this step began
+            self._rebase(self.x0)
+            self.dmoved[:] = self.step_moved
         self.nlive = _select(self.vt, self.vtd, self.nvt, self.edges, self.ee, self.eed,
-                             self.nee, self.faces, th, self.moved, self.step_moved,
+                             self.nee, self.faces, th, self.dmoved, self.step_moved,
                              self.reach, self.live)
-        self.since += 1
-        if self.live_built < 0:
-            self.live_built = self.nlive      # the first step on a new list
+        self.since_based += 1
+        if self.live_based < 0:
+            self.live_based = self.nlive          # the first step after a rebase
         diss = 0.0
         if self.nlive:
             _inverse_mass(coeff.mass, control.pinned, self.inv)
@@ -1316,7 +1391,8 @@ class SelfCollision:
         return {'candidates': int(self.nvt + self.nee), 'live': int(self.nlive),
                 'active': int(s[0]), 'rounds': int(s[1]), 'sweeps': int(s[2]),
                 'left_short': int(s[3]), 'closest_gap': float(s[4]),
-                'builds': int(self.builds), 'refreshes': int(self.refreshes)}
+                'builds': int(self.builds), 'refreshes': int(self.refreshes),
+                'rebases': int(self.rebases)}
 
 
 def warm() -> None:

@@ -503,9 +503,11 @@ def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1,
           'step": what self-collision adds over the step without it (target <= 1 at 80, '
           'growing as n log n or slower); '
           '"builds": full builds of the candidate list in the batches, "refreshes": '
-          'partial ones around the vertices that moved.\n')
+          'partial ones around the vertices that moved, "rebases": the candidates\' '
+          'distances taken again.\n')
     _table(('N', 'vertices', 'ms/step without', 'ms/step with', 'with / without',
-            'extra / step', 'candidates', 'live', 'pairs', 'builds', 'refreshes'))
+            'extra / step', 'candidates', 'live', 'pairs', 'builds', 'refreshes',
+            'rebases'))
     nv, extra = [], []
     for n in crumpled:
         sims = crumpled_scenes(n)
@@ -514,8 +516,8 @@ def part_self(sizes, crumpled=(40, 80), pairs: int = 5, batch_s: float = 0.1,
         st = sims[1].self_contact_state()
         print(f'| {n} | {sims[0].n_vertices} | {ms0:.3f} | {ms1:.3f} | {ratio:.2f} | '
               f'{ratio - 1:.2f} | {st["candidates"]} | {st["live"]} | {st["active"]} | '
-              f'{st["builds"] - s0["builds"]} | {st["refreshes"] - s0["refreshes"]} |',
-              flush=True)
+              f'{st["builds"] - s0["builds"]} | {st["refreshes"] - s0["refreshes"]} | '
+              f'{st["rebases"] - s0["rebases"]} |', flush=True)
         nv.append(sims[0].n_vertices)
         extra.append(max((ratio - 1.0) * ms0, 1e-9))
     _growth(nv, extra)
