@@ -19,11 +19,13 @@ Newton's method:
 
 * the Newton system ``A p = -r`` by preconditioned conjugate gradients, matrix-free:
   ``H_E q = -(f_int(x' + eps q) - f_int(x')) / eps`` from the compiled internal force of
-  the explicit solver (one evaluation per CG iteration); preconditioned by the inverse of
-  A's per-vertex 3x3 diagonal blocks (``hessian_blocks`` of each term, positive
-  semi-definite, plus the mass and damping); stopped at the inexact-Newton forcing
-  tolerance ``|r + A p| <= eta |r|`` (Eisenstat & Walker 1996, eta = min(0.5,
-  sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative curvature: H_E is indefinite
+  the explicit solver (one evaluation per CG iteration); preconditioned by a sparse
+  factorization of P = the mass and damping + the membrane's whole Hessian (its positive
+  part) + the bending's and coupling's per-vertex 3x3 blocks (``hessian_blocks``, positive
+  semi-definite), kept across iterations and steps until CG needs more than twice what
+  it took with it fresh (``ImplicitSolver._preconditioner``); stopped at the
+  inexact-Newton forcing tolerance ``|r + A p| <= eta |r|`` (Eisenstat & Walker 1996,
+  eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative curvature: H_E is indefinite
   under compression; Steihaug truncation, Nocedal & Wright 2006, Alg. 7.1) with the
   iterate so far, or the steepest descent if there is none;
 * a backtracking (Armijo) line search on Phi, so that every iteration lowers the
@@ -184,7 +186,9 @@ class ImplicitSolver:
         whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
         coupling diagonal blocks, with the rows and columns of ``pinned`` (the pins and
         the vertices that stick to an obstacle) replaced by the identity; factored by
-        SuperLU."""
+        SuperLU in single precision: a preconditioner needs no more (the CG iterations
+        stay the same), and its solves, the solver's largest cost, take less time
+        (docs/performance.md)."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
@@ -206,12 +210,13 @@ class ImplicitSolver:
             pd = np.repeat(pinned, 3)
             vals[:blk.size][pd[rows[:blk.size]] | pd[cols[:blk.size]]] = 0.0
         data = np.bincount(inv, weights=vals, minlength=nnz)
-        lu = splu(sp.csc_matrix((data, indices, indptr), shape=(3 * n, 3 * n)),
+        lu = splu(sp.csc_matrix((data.astype(np.float32), indices, indptr),
+                                shape=(3 * n, 3 * n)),
                   permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
                   options={'SymmetricMode': True})
 
         def solve(r):
-            z = lu.solve(r.reshape(-1)).reshape(n, 3)
+            z = lu.solve(r.reshape(-1).astype(np.float32)).reshape(n, 3).astype(np.float64)
             z[pinned] = 0.0
             return z
         return solve
@@ -382,7 +387,7 @@ class ImplicitSolver:
                 # P has drifted from A: factor it again. Not merely because CG needs many
                 # iterations: P leaves out the bending's off-diagonal blocks, so on a fine
                 # mesh even a fresh P needs ~17 (issue 6, N = 80), and a factorization
-                # there (~160 ms) costs ~20 of them (~8 ms each)
+                # there (~60 ms) costs ~30 of their solves (~2 ms each)
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
                 self._fresh_cg = None
                 rep.factorizations += 1
