@@ -198,6 +198,34 @@ def test_pins_forces_and_damping_as_in_the_explicit_solver():
     assert sim.state.v[:, 2] == pytest.approx((1.0 / (1.0 + ratio * 0.01)) ** 10, rel=1e-9)
 
 
+def test_a_steady_acceleration_is_carried_on_into_the_next_step():
+    """A flat sheet falling freely, at rest in itself: the step ends at y = x + dt v - dt^2
+    g, where the coasting start x + dt v is short by dt^2 g. The first step needs Newton
+    iterations; from then on the start from the last step's acceleration carried on is
+    y itself (no residual), and backward Euler's free fall v_k = -k g dt holds
+    (ImplicitSolver._newton's guess)."""
+    mat = fabric(eh=500.0, damping=0.0)
+    sim = ClothSimulator(grid_mesh(8, 8), mat, dt=1 / 60, check_dt=False, solver='implicit')
+    sim.gravity = (0.0, 0.0, -9.81)
+    sim.solver_tolerance = 1e-10                 # the fall's law, not the tolerance
+    z0 = sim.state.x[:, 2].copy()
+    its = []
+    for _ in range(4):
+        sim.step(1)
+        its.append(sim.solve_report['iterations'])
+    assert its[0] >= 1 and its[1:] == [0, 0, 0]
+    dt = 1 / 60
+    np.testing.assert_allclose(sim.state.v[:, 2], -4 * 9.81 * dt, rtol=1e-9)
+    np.testing.assert_allclose(sim.state.x[:, 2], z0 - 9.81 * dt ** 2 * (1 + 2 + 3 + 4),
+                               rtol=0, atol=1e-12)
+    # gravity turned round: the acceleration carried on is the wrong way (a start with a
+    # higher Phi than coasting, so not taken), and the step is still backward Euler's
+    sim.gravity = (0.0, 0.0, 9.81)
+    sim.step(1)
+    assert sim.solve_report['iterations'] >= 1
+    np.testing.assert_allclose(sim.state.v[:, 2], -3 * 9.81 * dt, rtol=1e-9)
+
+
 def test_a_blow_up_is_caught_before_it_is_published_and_restores_the_state():
     # a speed beyond the elastic limit after a solved step: refused like an explicit
     # divergence, the state as before the call
