@@ -556,7 +556,8 @@ def _growth(nv, extra) -> None:
 
 # --------------------------------------------------------------------------- the node
 
-def _node_params(path: str, n: int, material: Material, dt: float, pinned):
+def _node_params(path: str, n: int, material: Material, dt: float, pinned,
+                 solver: str = 'explicit'):
     with open(path, 'w') as fh:
         fh.write(f"""cloth_node:
   ros__parameters:
@@ -564,6 +565,7 @@ def _node_params(path: str, n: int, material: Material, dt: float, pinned):
     material: {{zeta: {material.zeta!r}, xi: {material.xi!r}, phi: {material.phi!r},
                 density: {material.density!r}, damping: {material.damping!r}}}
     dt: {float(dt)!r}
+    solver: {solver}
     publish_rate: 30.0
     pinned: {{sets: [{', '.join(pinned)}]}}
     status_period: 0.0
@@ -680,7 +682,15 @@ def part_node(watch_s: float):
         crit = probe.critical_dt()
         for dt in sorted({2e-4, round(DT_FRACTION * crit, 7)}):
             if dt <= crit:
-                cases.append((name, mat, pinned, dt, crit, probe))
+                cases.append((name, mat, pinned, dt, crit, probe, 'explicit'))
+    # the implicit solver at 1/60 s on the issue's scene (issue 26: RTF >= 1 at N = 40
+    # while the node publishes at 30 Hz); its sheet falls from flat, then hangs settled
+    probe = ClothSimulator(grid_mesh(40, 40), SCENE, dt=1 / 60, check_dt=False,
+                           solver='implicit')
+    probe.pin(pin_set(probe.mesh, 'boundary'))
+    probe.gravity = (0.0, 0.0, -peer.GRAVITY)
+    cases.append(('issue 6 scene, all edges pinned, implicit solver', SCENE, ['boundary'],
+                  1 / 60, crit, probe, 'implicit'))
     with tempfile.TemporaryDirectory() as tmp:
         params = os.path.join(tmp, 'p.yaml')
         _node_params(params, 40, demo, 2e-4, demo_pins)
@@ -701,12 +711,12 @@ def part_node(watch_s: float):
         _table(('material / pins', 'dt [s]', 'dt / critical', 'mesh msgs/s', 'RTF',
                 'alone before', 'alone after', 'node / alone', 'short batches: RTF',
                 'short batches: ms'))
-        for name, mat, pinned, dt, crit, probe in cases:
+        for name, mat, pinned, dt, crit, probe, solver in cases:
             probe.reset()
             probe.dt = dt
             short_rtf, short_ms = step_rtf(probe)
             before = sustained_rtf(probe, watch_s)
-            _node_params(params, 40, mat, dt, pinned)
+            _node_params(params, 40, mat, dt, pinned, solver)
             _, rate, rtf, _ = run_node(params, watch_s)
             after = sustained_rtf(probe, watch_s)
             print(f'| {name} | {dt:.3g} | {dt / crit:.2f} | {rate:.1f} | {rtf:.3f} | '
