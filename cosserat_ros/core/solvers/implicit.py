@@ -22,12 +22,13 @@ Newton's method:
   the explicit solver (one evaluation per CG iteration); preconditioned by a sparse
   factorization of P = the mass and damping + the membrane's whole Hessian (its positive
   part) + the bending's and coupling's per-vertex 3x3 blocks (``hessian_blocks``, positive
-  semi-definite), kept across iterations and steps until CG needs more than twice what
-  it took with it fresh (``ImplicitSolver._preconditioner``); stopped at the
-  inexact-Newton forcing tolerance ``|r + A p| <= eta |r|`` (Eisenstat & Walker 1996,
-  eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative curvature: H_E is indefinite
-  under compression; Steihaug truncation, Nocedal & Wright 2006, Alg. 7.1) with the
-  iterate so far, or the steepest descent if there is none;
+  semi-definite; where the bending dominates the inertia at the mesh's scale, its whole
+  plate operator instead of its blocks), kept across iterations and steps until CG needs
+  more than twice what it took with it fresh (``ImplicitSolver._preconditioner``);
+  stopped at the inexact-Newton forcing tolerance ``|r + A p| <= eta |r|`` (Eisenstat &
+  Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative
+  curvature: H_E is indefinite under compression; Steihaug truncation, Nocedal & Wright
+  2006, Alg. 7.1) with the iterate so far, or the steepest descent if there is none;
 * a backtracking (Armijo) line search on Phi, so that every iteration lowers the
   potential (no overshoot, no divergence from a too-long Newton step at large dt); a
   full step whose change of Phi is below Phi's round-off (1e-11 of it, near the
@@ -87,6 +88,12 @@ from .update import contact_list
 __all__ = ['ImplicitSolver', 'SolveReport']
 
 
+#: the preconditioner holds the bending's whole plate operator where it dominates the
+#: inertia by more than this (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet at
+#: N = 40, beta 14, gained from it, the hanging denim at N = 80, beta 7, lost)
+PLATE_RATIO = 10.0
+
+
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
     worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
@@ -144,7 +151,8 @@ class ImplicitSolver:
         self._part = np.zeros((-(-n // VERTEX_CHUNK), 3))
         self._f = np.zeros((n, 3))
         self._fq = np.zeros((n, 3))
-        self._csc = None
+        self._csc = {}
+        self._plate_coo = None
         self._pinv = None
         self._pinv_key = None
         #: CG iterations above which the factored preconditioner is rebuilt, when they
@@ -165,10 +173,26 @@ class ImplicitSolver:
     def _energy(self, coeff, x: np.ndarray) -> float:
         return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
 
-    def _pattern(self):
-        """The fixed sparsity of P (the membrane's face blocks and the diagonal blocks),
-        as CSC arrays and the map from the assembled values to them; built once."""
-        if self._csc is None:
+    def _plate(self):
+        """The plate operator ``bending.plate_matrix`` (COO, for D = 1 N m); built once."""
+        if self._plate_coo is None:
+            from ..terms.bending import plate_matrix
+            self._plate_coo = plate_matrix(self.model).tocoo()
+        return self._plate_coo
+
+    def plate_ratio(self, coeff, dt: float) -> float:
+        """beta: the median over the vertices of the bending's plate operator's diagonal,
+        ``6 xi K_ii``, over the inertia's ``m_i / dt^2``: how far the bending dominates at
+        the mesh's own scale (``_preconditioner``)."""
+        k = self._plate().tocsr().diagonal()
+        return float(np.median(6.0 * coeff.xi * k / (coeff.mass / dt ** 2)))
+
+    def _pattern(self, plate: bool):
+        """The fixed sparsity of P (the membrane's face blocks, the diagonal blocks and,
+        with ``plate``, the plate operator on each coordinate), as CSC arrays, the map from
+        the assembled values to them, the plate operator's values for D = 1 N m (or None)
+        and the membrane's entry count; built once for each."""
+        if plate not in self._csc:
             from ..terms.membrane import hessian_pattern
             n = self.model.n_vertices
             r0, c0 = hessian_pattern(self.model.faces.corners)
@@ -177,32 +201,51 @@ class ImplicitSolver:
                                  (n, 3, 3)).ravel()
             c1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, None, :],
                                  (n, 3, 3)).ravel()
-            rows, cols = np.concatenate([r0, r1]), np.concatenate([c0, c1])
+            rows, cols, pvals = [r0, r1], [c0, c1], None
+            if plate:
+                pl = self._plate()
+                rows.append((3 * pl.row[:, None] + k).ravel())
+                cols.append((3 * pl.col[:, None] + k).ravel())
+                pvals = np.repeat(pl.data, 3)
+            rows, cols = np.concatenate(rows), np.concatenate(cols)
             key = cols.astype(np.int64) * (3 * n) + rows       # column-major: CSC order
             uniq, inv = np.unique(key, return_inverse=True)
             indices = (uniq % (3 * n)).astype(np.int32)
             indptr = np.searchsorted(uniq // (3 * n), np.arange(3 * n + 1)).astype(np.int32)
-            self._csc = (rows, cols, inv, len(uniq), indices, indptr)
-        return self._csc
+            self._csc[plate] = (rows, cols, inv, len(uniq), indices, indptr, pvals, len(r0))
+        return self._csc[plate]
 
     def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, drag_dt,
-                        pinned: np.ndarray):
+                        pinned: np.ndarray, dt: float):
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
-        whole Hessian (positive part, ``membrane.face_hessians``) + the bending and
-        coupling diagonal blocks, with the rows and columns of ``pinned`` (the pins and
-        the vertices that stick to an obstacle) replaced by the identity; factored by
-        SuperLU in single precision: a preconditioner needs no more (the CG iterations
-        stay the same), and its solves, the solver's largest cost, take less time
-        (docs/performance.md)."""
+        whole Hessian (positive part, ``membrane.face_hessians``) + the coupling's diagonal
+        blocks + for the bending either its diagonal blocks or, where it dominates the
+        inertia at the mesh's scale (:meth:`plate_ratio` above :data:`PLATE_RATIO`), its
+        whole plate operator ``6 xi K`` on each coordinate (``bending.plate_matrix``);
+        with the rows and columns of ``pinned`` (the pins and the vertices that stick to
+        an obstacle) replaced by the identity.
+
+        Why the choice: the diagonal blocks alone leave CG a condition number of about
+        1 + beta in the bending's band of modes (beta grows as N^4 at a fixed dt: 0.9 /
+        14 / 230 on issue 6's sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
+        iterations (~18 per Newton iteration at N = 80); the operator's fill makes each
+        factorization ~2.5x dearer, which a cloth that swings and so refactors P often
+        (11 oz denim: beta 0.4 at N = 40) does not win back.
+
+        Factored by SuperLU in single precision: a preconditioner needs no more (the CG
+        iterations stay the same), and its solves, the solver's largest cost, take less
+        time (docs/performance.md)."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
         mdl = self.model
         f = mdl.faces
         n = len(x)
-        rows, cols, inv, nnz, indices, indptr = self._pattern()
-        blocks = TERMS['bending'].hessian_blocks(mdl, coeff, x)
+        plate = self.plate_ratio(coeff, dt) > PLATE_RATIO
+        rows, cols, inv, nnz, indices, indptr, pvals, nface = self._pattern(plate)
+        blocks = (np.zeros((n, 3, 3)) if plate
+                  else TERMS['bending'].hessian_blocks(mdl, coeff, x))
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
@@ -211,10 +254,15 @@ class ImplicitSolver:
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
-        vals = np.concatenate([blk.ravel(), blocks.ravel()])
+        vals = [blk.ravel(), blocks.ravel()]
+        if plate:
+            vals.append(6.0 * coeff.xi * pvals)
+        vals = np.concatenate(vals)
         if pinned.any():
             pd = np.repeat(pinned, 3)
-            vals[:blk.size][pd[rows[:blk.size]] | pd[cols[:blk.size]]] = 0.0
+            off = pd[rows] | pd[cols]
+            off[nface:nface + blocks.size] = False        # the identity blocks stay
+            vals[off] = 0.0
         data = np.bincount(inv, weights=vals, minlength=nnz)
         lu = splu(sp.csc_matrix((data.astype(np.float32), indices, indptr),
                                 shape=(3 * n, 3 * n)),
@@ -389,7 +437,7 @@ class ImplicitSolver:
             key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
                    held.tobytes(), drag is None)
             if self._pinv is None or self._pinv_key != key:
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
                 self._pinv_key = key
                 self._fresh_cg = None
                 rep.factorizations += 1
@@ -408,7 +456,7 @@ class ImplicitSolver:
                 # iterations: P leaves out the bending's off-diagonal blocks, so on a fine
                 # mesh even a fresh P needs ~17 (issue 6, N = 80), and a factorization
                 # there (~60 ms) costs ~30 of their solves (~2 ms each)
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held)
+                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
                 self._fresh_cg = None
                 rep.factorizations += 1
             rep.cg_iterations += used
