@@ -900,9 +900,9 @@ def _displacement(x, ref, out):
 @kernel()
 def _displacements(x, x0, xb, xd, step, dmoved):
     """:func:`_displacement` of x from the step's start ``x0`` and from where the
-    candidates' distances were taken, ``xd``, into ``step`` and ``dmoved``; returns their
-    largest and the largest from the list's references ``xb`` (whose own array only a
-    refresh needs)."""
+    candidates' distances were taken, ``xd``, into ``step`` and ``dmoved``; returns the
+    largest of the first and the largest from the list's references ``xb`` (whose own
+    array only a refresh needs)."""
     c = np.zeros(9)
     n = x.shape[0]
     for i in range(n):
@@ -913,7 +913,6 @@ def _displacements(x, x0, xb, xd, step, dmoved):
     c /= n
     b0 = 0.0
     b1 = 0.0
-    b2 = 0.0
     for i in range(n):
         step[i] = math.sqrt((x[i, 0] - x0[i, 0] - c[0]) ** 2 + (x[i, 1] - x0[i, 1] - c[1]) ** 2
                             + (x[i, 2] - x0[i, 2] - c[2]) ** 2)
@@ -924,8 +923,7 @@ def _displacements(x, x0, xb, xd, step, dmoved):
                               + (x[i, 2] - xd[i, 2] - c[8]) ** 2)
         b0 = max(b0, step[i])
         b1 = max(b1, moved)
-        b2 = max(b2, dmoved[i])
-    return b0, math.sqrt(b1), b2
+    return b0, math.sqrt(b1)
 
 
 @kernel()
@@ -1160,7 +1158,7 @@ class SelfCollision:
         self.nee = 0
         self.nlive = 0
         self._alloc(len(self.vt) + len(self.ee))
-        self.moved = np.zeros(n)                # relative displacement since the build
+        self.moved = np.zeros(n)                # relative displacement since xb
         self.step_moved = np.zeros(n)           # ... and in this step
         self.xd = np.zeros((n, 3))              # where the candidates' distances were taken
         self.dmoved = np.zeros(n)               # relative displacement since then
@@ -1332,8 +1330,8 @@ class SelfCollision:
     def after_step(self, state, control, coeff, dt: float) -> float:
         th = float(control.contact_params[0])
         x = state.x
-        step, far, _ = _displacements(x, self.x0, self.xb, self.xd, self.step_moved,
-                                      self.dmoved)
+        step, far = _displacements(x, self.x0, self.xb, self.xd, self.step_moved,
+                                   self.dmoved)
         skin = max(SKIN * th, SKIN_EDGE * self.edge, 2.5 * step,
                    min(STEPS_PER_BUILD * step, self.edge))
         out = self.builds == 0 or th != self.built_th or far > 0.5 * self.skin

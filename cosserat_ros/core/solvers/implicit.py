@@ -153,6 +153,7 @@ class ImplicitSolver:
         self._fq = np.zeros((n, 3))
         self._csc = {}
         self._plate_coo = None
+        self._plate_diag = None
         self._pinv = None
         self._pinv_key = None
         #: CG iterations above which the factored preconditioner is rebuilt, when they
@@ -174,18 +175,21 @@ class ImplicitSolver:
         return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
 
     def _plate(self):
-        """The plate operator ``bending.plate_matrix`` (COO, for D = 1 N m); built once."""
+        """The plate operator ``bending.plate_matrix`` (COO, for D = 1 N m); built once,
+        with its diagonal."""
         if self._plate_coo is None:
             from ..terms.bending import plate_matrix
-            self._plate_coo = plate_matrix(self.model).tocoo()
+            k = plate_matrix(self.model)
+            self._plate_diag = k.diagonal()
+            self._plate_coo = k.tocoo()
         return self._plate_coo
 
     def plate_ratio(self, coeff, dt: float) -> float:
         """beta: the median over the vertices of the bending's plate operator's diagonal,
         ``6 xi K_ii``, over the inertia's ``m_i / dt^2``: how far the bending dominates at
         the mesh's own scale (``_preconditioner``)."""
-        k = self._plate().tocsr().diagonal()
-        return float(np.median(6.0 * coeff.xi * k / (coeff.mass / dt ** 2)))
+        self._plate()
+        return float(np.median(6.0 * coeff.xi * self._plate_diag / (coeff.mass / dt ** 2)))
 
     def _pattern(self, plate: bool):
         """The fixed sparsity of P (the membrane's face blocks, the diagonal blocks and,
@@ -453,9 +457,10 @@ class ImplicitSolver:
                 self._fresh_cg = used
             elif used > max(self.refresh, 2 * self._fresh_cg):
                 # P has drifted from A: factor it again. Not merely because CG needs many
-                # iterations: P leaves out the bending's off-diagonal blocks, so on a fine
-                # mesh even a fresh P needs ~17 (issue 6, N = 80), and a factorization
-                # there (~60 ms) costs ~30 of their solves (~2 ms each)
+                # iterations: with the bending's diagonal blocks only (beta below
+                # PLATE_RATIO) even a fresh P needs many (~17 a solve on issue 6's
+                # 80 x 80 sheet without the plate operator), and a factorization costs
+                # ~30 solves (~60 and ~2 ms there)
                 self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
                 self._fresh_cg = None
                 rep.factorizations += 1

@@ -160,7 +160,6 @@ def hessian_blocks(model, coeff, x: np.ndarray) -> np.ndarray:
     return out
 
 
-
 def cotangent_laplacian(points: np.ndarray, corners: np.ndarray):
     """The cotangent Laplacian L (n, n) of a triangle mesh, scipy.sparse CSR,
     dimensionless, positive semi-definite (module docstring)."""
