@@ -116,6 +116,33 @@ def test_membrane_matrix_is_the_whole_hessian_and_its_diagonal_the_blocks():
     assert np.linalg.eigvalsh(clamped).min() >= -1e-10 * scale
 
 
+@pytest.mark.parametrize('name', ['irregular', 'icosphere'])
+def test_compression_product_is_what_the_clamp_adds_to_the_hessian(name):
+    # the implicit solver's projected Newton: add_compression_product(q) must be exactly
+    # (hessian_matrix(psd) - hessian_matrix(exact)) q, zero where every face is stretched
+    model = _model(name)
+    coeff = model.coefficients(MAT)
+    f = model.faces
+    m = len(f.corners)
+    rng = np.random.default_rng(4)
+    q = rng.standard_normal((model.n_vertices, 3))
+    tens, work = np.empty((m, 3)), np.empty((m, 2, 3))
+    squeezed_x = _deformed(model, 0.002) * 0.93
+    stretched_x = model.mesh.vertices * 1.04
+    for x, compressed in ((squeezed_x, True), (stretched_x, False)):
+        membrane.compression_stress(x, f.corners, f.dinv, f.area, coeff.zeta, tens)
+        out = np.zeros_like(q)
+        membrane.add_compression_product(model, tens, q, out, work)
+        diff = (membrane.hessian_matrix(model, coeff, x)
+                - membrane.hessian_matrix(model, coeff, x, psd=False))
+        want = (diff @ q.reshape(-1)).reshape(-1, 3)
+        if compressed:
+            assert np.abs(want).max() > 0.0
+            assert np.abs(out - want).max() <= 1e-12 * np.abs(want).max()
+        else:
+            assert np.abs(out).max() == 0.0 and np.abs(want).max() == 0.0
+
+
 @pytest.mark.parametrize('term', ['bending', 'coupling'])
 @pytest.mark.parametrize('name', ['regular', 'irregular'])
 def test_gauss_newton_blocks_are_exact_at_a_flat_rest_state(term, name):

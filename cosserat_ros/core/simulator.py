@@ -389,12 +389,14 @@ class ClothSimulator:
     def solve_report(self) -> Dict[str, float]:
         """What the last implicit step's solve did: ``iterations`` (Newton),
         ``cg_iterations``, ``factorizations`` (of its preconditioner, which is kept
-        across steps until CG needs too many iterations), ``residual`` (in
+        across steps until CG needs too many iterations), ``negative_curvature`` (CG
+        solves stopped where the bending's Hessian is not positive), ``residual`` (in
         :attr:`solver_tolerance`'s units),
         ``converged``, and ``unconverged_steps`` since construction."""
         r = self._implicit('solve_report').last
         return {'iterations': r.iterations, 'cg_iterations': r.cg_iterations,
-                'factorizations': r.factorizations, 'residual': r.residual,
+                'factorizations': r.factorizations,
+                'negative_curvature': r.negative_curvature, 'residual': r.residual,
                 'converged': r.converged,
                 'unconverged_steps': r.unconverged_steps}
 

@@ -17,17 +17,23 @@ the residual ``r(x') = m (x' - y) / dt^2 + c (x' - x) / dt - f_int(x')`` and its
 pinned or held vertex moves with its prescribed velocity, as in the explicit update) by
 Newton's method:
 
-* the Newton system ``A p = -r`` by preconditioned conjugate gradients, matrix-free:
+* the Newton system ``A+ p = -r`` by preconditioned conjugate gradients, matrix-free:
   ``H_E q = -(f_int(x' + eps q) - f_int(x')) / eps`` from the compiled internal force of
-  the explicit solver (one evaluation per CG iteration); preconditioned by a sparse
+  the explicit solver (one evaluation per CG iteration), plus what makes the membrane's
+  part of it positive semi-definite, ``G(S+ - S) (x) I_3 q`` (``membrane.
+  add_compression_product``: the stress part of a compressed triangle's Hessian with S's
+  negative eigenvalue clamped, the projected Newton of Teran et al. 2005, "Robust
+  quasistatic finite elements"; the solution is the same, only the path to it: a cloth
+  swinging under compression otherwise meets negative curvature in most Newton
+  iterations and the line search cuts the truncated step to 1/16-1/1000); preconditioned by a sparse
   factorization of P = the mass and damping + the membrane's whole Hessian (its positive
   part) + the bending's and coupling's per-vertex 3x3 blocks (``hessian_blocks``, positive
   semi-definite; where the bending dominates the inertia at the mesh's scale, its whole
   plate operator instead of its blocks), kept across iterations and steps until CG needs
   more than twice what it took with it fresh (``ImplicitSolver._preconditioner``);
-  stopped at the inexact-Newton forcing tolerance ``|r + A p| <= eta |r|`` (Eisenstat &
-  Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A q <= 0`` (negative
-  curvature: H_E is indefinite under compression; Steihaug truncation, Nocedal & Wright
+  stopped at the inexact-Newton forcing tolerance ``|r + A+ p| <= eta |r|`` (Eisenstat &
+  Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A+ q <= 0`` (negative
+  curvature, which the bending can still have: Steihaug truncation, Nocedal & Wright
   2006, Alg. 7.1) with the iterate so far, or the steepest descent if there is none;
 * a backtracking (Armijo) line search on Phi, so that every iteration lowers the
   potential (no overshoot, no divergence from a too-long Newton step at large dt); a
@@ -82,6 +88,7 @@ import numpy as np
 from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
 from ..terms import TERMS
+from ..terms.membrane import add_compression_product, compression_stress
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .update import contact_list
 
@@ -111,6 +118,8 @@ class SolveReport:
     cg_iterations: int = 0
     #: factorizations of the preconditioner in the last step (it is kept across steps)
     factorizations: int = 0
+    #: conjugate-gradient solves of the last step stopped at negative curvature
+    negative_curvature: int = 0
     #: the final residual max_i |r_i| relative to the step's start (dimensionless)
     residual: float = 0.0
     #: whether it fell below the tolerance
@@ -161,6 +170,8 @@ class ImplicitSolver:
         self.refresh = 8
         self._fresh_cg = None
         self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
+        self._tens = np.empty((model.mesh.n_faces, 3))
+        self._tq = np.empty((model.mesh.n_faces, 2, 3))
         self._contacts = ObstacleConstraints(n)
         #: the last step's acceleration (v' - v) / dt, for the next step's predictor
         self._accel = np.zeros((n, 3))
@@ -319,7 +330,7 @@ class ImplicitSolver:
             con.begin(xn, vn, y, free, control, dt)
         th = control.contact_params[0]
         rep = self.last
-        rep.iterations = rep.cg_iterations = rep.factorizations = 0
+        rep.iterations = rep.cg_iterations = rep.factorizations = rep.negative_curvature = 0
         f = self._f
         # the forces on each vertex other than the elastic one, for the round-off floor
         outer = np.linalg.norm(fa, axis=1) + mass[:, 0] * np.linalg.norm(g)
@@ -504,8 +515,9 @@ class ImplicitSolver:
         return raw(xk, f)
 
     def _cg(self, xk, f, r, diag, drag_dt, pinv, filt, coeff, eta):
-        """Truncated PCG for ``A p = -r`` on the free coordinates (``filt`` zeroes the
-        others, module docstring); returns (p, iterations)."""
+        """Truncated PCG for ``A+ p = -r`` on the free coordinates (``filt`` zeroes the
+        others; A+ = A with the membrane's compressed stress clamped, module docstring);
+        returns (p, iterations)."""
         fq = self._fq
         b = -r
         p = np.zeros_like(r)
@@ -515,6 +527,10 @@ class ImplicitSolver:
         rz = float(np.sum(z_r * z))
         bnorm = _norm(b)
         xscale = max(1.0, float(np.abs(xk).max()))
+        fc = self.model.faces
+        tens, tq = self._tens, self._tq
+        compression_stress(np.ascontiguousarray(xk), fc.corners, fc.dinv, fc.area,
+                           coeff.zeta, tens)
         for k in range(self.cg_iterations):
             dn = float(np.abs(d).max())
             if dn == 0.0:
@@ -524,9 +540,11 @@ class ImplicitSolver:
             ad = diag * d - (fq - f) / eps
             if drag_dt is not None:
                 ad += np.einsum('nij,nj->ni', drag_dt, d)
+            add_compression_product(self.model, tens, d, ad, tq)
             filt(ad)
             curv = float(np.sum(d * ad))
             if not curv > 0.0:                   # negative curvature (or NaN): stop here
+                self.last.negative_curvature += 1
                 return (p if k > 0 else d), k + 1
             a = rz / curv
             p += a * d

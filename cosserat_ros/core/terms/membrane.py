@@ -53,7 +53,8 @@ import numpy as np
 
 from ..compiled import kernel
 
-__all__ = ['energy', 'gradient', 'hessian_blocks', 'hessian_matrix', 'face_membrane',
+__all__ = ['energy', 'gradient', 'hessian_blocks', 'hessian_matrix', 'compression_stress',
+           'add_compression_product', 'face_membrane',
            'deformation_gradient', 'corner_gradient_row']
 
 
@@ -312,6 +313,62 @@ def face_hessians(x, faces, dinv, face_area, zeta, psd, out):
                         if r == q:
                             h += geo
                         out[t, c, d, r, q] = h
+
+
+@kernel(parallel=True)
+def compression_stress(x, faces, dinv, face_area, zeta, out):
+    """out[t] (m,3) = ``S+_t - S_t`` as (11, 12, 22): minus the negative part of face t's
+    stress times area (zero for a triangle stretched in both directions; positive
+    semi-definite always). What the clamp of ``psd=True`` adds to the exact Hessian:
+    ``d2E_m+ - d2E_m = G(S+ - S) (x) I_3`` with ``G(T)_cd = G_c T G_d^T`` (module
+    docstring); :func:`add_compression_product` applies it."""
+    for t in nb.prange(faces.shape[0]):
+        f00, f01, f10, f11, f20, f21 = deformation_gradient(x, faces, dinv, t, t)
+        e11, e12, e22 = green_strain(f00, f01, f10, f11, f20, f21)
+        s11, s12, s22 = stress_times_area(face_area[t] * 2.0 * zeta, e11, e12, e22)
+        p11, p12, p22 = _positive_stress(s11, s12, s22)
+        out[t, 0] = p11 - s11
+        out[t, 1] = p12 - s12
+        out[t, 2] = p22 - s22
+
+
+@kernel(parallel=True)
+def _compression_faces(faces, dinv, tens, q, tq):
+    """tq[t] (m,2,3) = T_t [sum_c a_c q_c, sum_c b_c q_c] (T = tens[t], G_c = (a_c, b_c))."""
+    for t in nb.prange(faces.shape[0]):
+        t11 = tens[t, 0]
+        t12 = tens[t, 1]
+        t22 = tens[t, 2]
+        for k in range(3):
+            ua = 0.0
+            ub = 0.0
+            for c in range(3):
+                a, b = _corner_weights(dinv, t, c)
+                qc = q[faces[t, c], k]
+                ua += a * qc
+                ub += b * qc
+            tq[t, 0, k] = t11 * ua + t12 * ub
+            tq[t, 1, k] = t12 * ua + t22 * ub
+
+
+@kernel(parallel=True)
+def _compression_gather(dinv, vf_ptr, vf_face, vf_corner, tq, out):
+    for j in nb.prange(out.shape[0]):
+        for p in range(vf_ptr[j], vf_ptr[j + 1]):
+            t = vf_face[p]
+            a, b = _corner_weights(dinv, t, vf_corner[p])
+            for k in range(3):
+                out[j, k] += a * tq[t, 0, k] + b * tq[t, 1, k]
+
+
+def add_compression_product(model, tens: np.ndarray, q: np.ndarray, out: np.ndarray,
+                            work: np.ndarray) -> None:
+    """out (n,3) += ``(G(T) (x) I_3) q``: the geometric stiffness of ``tens`` (m,3, from
+    :func:`compression_stress`) times q (n,3); ``work`` (m,2,3) scratch. A face pass then
+    a gather over each vertex's faces (no scatter)."""
+    f, vf = model.faces, model.vertex_faces
+    _compression_faces(f.corners, f.dinv, tens, q, work)
+    _compression_gather(f.dinv, vf.ptr, vf.face, vf.corner, work, out)
 
 
 def hessian_matrix(model, coeff, x: np.ndarray, psd: bool = True):
