@@ -130,6 +130,15 @@ def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
     rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| issue6')
             or l.startswith('| stiff')]
     assert len(rows) == 2 and all(float(r.split('|')[6]) > 0 for r in rows)   # RTF
+    for r in rows:                       # MuJoCo discrete beside it, and the RTF ratio
+        cells = [c.strip() for c in r.split('|')[1:-1]]
+        assert len(cells) == 12
+        if peer.available() is None:
+            assert cells[9:] == ['-', '-', '-']
+        else:
+            ms, rtf, ratio = (float(c) for c in cells[9:])
+            assert ms > 0 and rtf > 0
+            assert ratio == pytest.approx(float(cells[5]) / rtf, rel=0.02)
 
 
 def test_self_part_folds_the_cloth_into_touching_layers_without_stretching_it(capsys):

@@ -18,7 +18,10 @@ off, and how its extra cost grows with N):
 2. ``peer`` (needs the ``mujoco`` wheel), per scene: MuJoCo's flex on the same scene,
    Euler (and on the issue-6 scene ``discrete``), at our dt and at its own largest stable
    dt, beside ours, with the ratio of step times measured in alternating batches; and the
-   settled centre sag of both on the issue-6 scene (about 0.0354 m).
+   settled centre sag of both on the issue-6 scene (about 0.0354 m), ours with each
+   solver. The part ``implicit`` sets our implicit solver at 1/60 s beside our explicit
+   one and MuJoCo's ``discrete`` at 1/60 s, on the issue-6 and the stiff (E h = 2e3 N/m)
+   sheets.
 3. ``node``: the installed ``cloth_node`` started as ``ros2 run`` starts it: process start to
    first mesh message with a cold and a warm compile cache, and the real-time factor of a
    40 x 40 cloth publishing at 30 Hz, beside the real-time factor of the same cloth
@@ -203,9 +206,10 @@ def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1,
     return float('nan') if theirs.bad() else float(np.median(ratios))
 
 
-def settled_sag(n: int) -> float:
-    """Our centre sag [m] on the issue-6 scene after SETTLE_TIME s of damped settling."""
-    sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY)
+def settled_sag(n: int, solver: str = 'explicit') -> float:
+    """Our centre sag [m] on the issue-6 scene after SETTLE_TIME s of damped settling (the
+    explicit solver at DT_FRACTION of its critical dt, the implicit one at 1/60 s)."""
+    sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY, solver=solver)
     sim.step(int(round(SETTLE_TIME / sim.dt)))
     return -float(sim.positions[:, 2].min())
 
@@ -289,11 +293,12 @@ def part_peer(ours, sizes, sag_sizes, scene=ISSUE6, discrete=True):
         return
     print(f'\nCentre sag after {SETTLE_TIME} s of settling with damping rate '
           f'{SETTLE_RATE} 1/s (mass-proportional in both engines):\n')
-    _table(('N', 'ours [m]', 'MuJoCo Euler [m]', 'MuJoCo discrete [m]'))
+    _table(('N', 'ours [m]', 'ours, implicit at 1/60 s [m]', 'MuJoCo Euler [m]',
+            'MuJoCo discrete at 1/60 s [m]'))
     for n in sag_sizes:
         dt = scene_simulator(n).dt
         euler_dt = peer.largest_stable_dt(n, 'Euler', dt)
-        print(f'| {n} | {settled_sag(n):.5f} | '
+        print(f'| {n} | {settled_sag(n):.5f} | {settled_sag(n, "implicit"):.5f} | '
               f"{_f(peer.settled_sag(n, 'Euler', euler_dt, SETTLE_TIME, SETTLE_RATE), '.5f')}"
               f" | {_f(peer.settled_sag(n, 'discrete', 1 / 60, SETTLE_TIME, SETTLE_RATE), '.5f')}"
               ' |', flush=True)
@@ -746,9 +751,12 @@ def part_implicit(sizes, budget_s: float = 4.0):
           'dt\n')
     print('Each sheet falls from flat (pins and gravity as in part 1); timed over its first '
           f'~{budget_s:g} s of wall time (at least 3 steps) after 2 steps: the fall is the '
-          'hard part for Newton. MuJoCo discrete at 1/60 s on issue6: part 1.\n')
+          'hard part for Newton. MuJoCo discrete at 1/60 s on the same sheet, timed falling '
+          'from flat (its peer part); "x MuJoCo" = our implicit RTF / its RTF.\n')
     _table(('scene', 'N', 'explicit ms/step', 'explicit RTF', 'implicit ms/step',
-            'implicit RTF', 'Newton its/step', 'CG its/step', 'unconverged steps'))
+            'implicit RTF', 'Newton its/step', 'CG its/step', 'unconverged steps',
+            'MuJoCo discrete ms/step', 'MuJoCo discrete RTF', 'x MuJoCo'))
+    mujoco = peer.available() is not None
     for scene in (ISSUE6, STIFF):
         for n in sizes:
             ex = scene_simulator(n, scene=scene)
@@ -766,9 +774,14 @@ def part_implicit(sizes, budget_s: float = 4.0):
                 r = im.solve_report
                 steps, its, cg = steps + 1, its + r['iterations'], cg + r['cg_iterations']
             tim = (time.perf_counter() - t) / steps
+            mj = float('nan')
+            if mujoco and peer.stable(n, 'discrete', im.dt, scene=scene):
+                mj = peer.ms_per_step(n, 'discrete', im.dt, scene=scene) * 1e-3
             print(f'| {scene.name} | {n} | {tex * 1e3:.3f} | {ex.dt / tex:.2f} | '
                   f'{tim * 1e3:.1f} | {im.dt / tim:.2f} | {its / steps:.1f} | '
-                  f'{cg / steps:.1f} | {im.solve_report["unconverged_steps"]} |', flush=True)
+                  f'{cg / steps:.1f} | {im.solve_report["unconverged_steps"]} | '
+                  f"{_f(mj * 1e3, '.3f')} | {_f(im.dt / mj, '.2f')} | {_f(mj / tim, '.3g')} |",
+                  flush=True)
 
 
 def main(argv=None):
@@ -787,7 +800,7 @@ def main(argv=None):
                     help='N for the contact part (none: skip it)')
     ap.add_argument('--air-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the air part (none: skip it)')
-    ap.add_argument('--implicit-sizes', type=int, nargs='*', default=[20, 40, 80],
+    ap.add_argument('--implicit-sizes', type=int, nargs='*', default=[20, 40, 80, 160],
                     help='N for the implicit-solver part (none: skip it)')
     ap.add_argument('--self-sizes', type=int, nargs='*', default=[40, 80, 160],
                     help='N for the self-collision part\'s folded stack (none: skip the '
