@@ -360,7 +360,10 @@ class ClothSimulator:
 
     @property
     def solver_iterations(self) -> int:
-        """Most Newton iterations per implicit step (default 20)."""
+        """Most Newton iterations per implicit step (default 20). 1 is the linearised
+        backward Euler (one Newton step a step, as Baraff & Witkin 1998): ~3x faster on a
+        swinging stiff cloth, exact statics, less accurate dynamics, and
+        :attr:`solver_tolerance` is not asked for (``core/solvers/implicit.py``)."""
         return self._implicit('solver_iterations').iterations
 
     @solver_iterations.setter

@@ -1090,7 +1090,10 @@ class ClothNode(Node):
                          'solver_residual': float(r['residual']),
                          'solver_converged': r['converged'],
                          'solver_unconverged_steps': r['unconverged_steps']})
-            if not r['converged'] and level == DiagnosticStatus.OK:
+            # linearised (solver.iterations 1): one Newton step by design, its residual
+            # reported but not a warning
+            if (not r['converged'] and level == DiagnosticStatus.OK
+                    and self.sim.solver_iterations > 1):
                 level, msg = DiagnosticStatus.WARN, (
                     f"implicit solve not converged (residual {r['residual']:.2g} > "
                     f'solver.tolerance {self.sim.solver_tolerance:g})')

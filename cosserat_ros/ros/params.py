@@ -94,7 +94,8 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                  'critical step) or implicit (backward Euler by Newton-CG, '
                                  'any dt up to 1 s, dissipative)', True)),
     'solver.iterations': (20, _desc('Most Newton iterations per implicit step (solver: '
-                                    'implicit only)',
+                                    'implicit only); 1 = linearised backward Euler (one '
+                                    'Newton step, tolerance not asked for)',
                                     ip=[IntegerRange(from_value=1, to_value=1000, step=1)])),
     'solver.tolerance': (1e-3, _desc('Implicit convergence: the largest vertex residual '
                                      'force relative to the start of the step',

@@ -76,6 +76,15 @@ and Coulomb conditions on it change the set and solve the step again (at most
 layer is answered afterwards by the explicit update's contact
 (:func:`.update.contact_list`).
 
+With ``iterations = 1`` the solver is the linearised backward Euler of Baraff & Witkin
+1998 (Sec. 4.1; MuJoCo's implicit integrators are linearised too): one Newton step a
+step, from the same start, its linear system solved to ``LINEARIZED_FORCING``, the
+tolerance not asked for. Statics are unchanged (at rest the residual is the static
+balance, and each step's Newton step continues from the last), the dynamics lose
+accuracy where the forces are far from linear over a step (a stiff cloth swinging: its
+mean height within 3% of the converged solve's over its first second, and 3x faster,
+docs/performance.md). The report still gives the residual it leaves.
+
 ``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
 step's solve did (Newton iterations, CG iterations, residual, converged).
 """
@@ -94,6 +103,12 @@ from .update import contact_list
 
 __all__ = ['ImplicitSolver', 'SolveReport']
 
+
+#: the CG forcing of the one Newton iteration of ``iterations = 1`` (linearised backward
+#: Euler, module docstring): the step is then only as right as this linear solve (0.5
+#: let the swinging denim of docs/performance.md fall at half its speed; 0.1 follows the
+#: converged solve's mean height within 3% over its first second, at a third of its cost)
+LINEARIZED_FORCING = 0.1
 
 #: the preconditioner holds the bending's whole plate operator where it dominates the
 #: inertia by more than this (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet at
@@ -137,7 +152,8 @@ class ImplicitSolver:
     explicit : :class:`.explicit.ExplicitSolver`
         Whose compiled internal force this solver evaluates.
     iterations : int
-        Most Newton iterations per step (default 20).
+        Most Newton iterations per step (default 20); 1: linearised backward Euler
+        (module docstring).
     tolerance : float
         Convergence: the largest vertex residual relative to the step's start
         (default 1e-3).
@@ -462,7 +478,8 @@ class ImplicitSolver:
 
                 def pinv(q, base=base):
                     return filt(base(filt(q.copy())))
-            eta = min(0.5, np.sqrt(_norm(r) / r0))
+            eta = (LINEARIZED_FORCING if self.iterations == 1
+                   else min(0.5, np.sqrt(_norm(r) / r0)))
             p, used = self._cg(xk, f, r, diag, drag_dt, pinv, filt, coeff, eta)
             if self._fresh_cg is None:
                 self._fresh_cg = used
