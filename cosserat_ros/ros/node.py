@@ -96,6 +96,17 @@ PAUSED_TICK = 0.2
 MESH_BUILD_PERIOD = 2.0
 
 
+def solver_warning(report: Dict[str, object], iterations: int,
+                   tolerance: float) -> Optional[str]:
+    """The WARN message of an implicit step's solve (``ClothSimulator.solve_report``), or
+    None: an unconverged solve warns, the linearised solver (``iterations`` 1: one Newton
+    step a step by design) does not; both report their residual."""
+    if report['converged'] or iterations == 1:
+        return None
+    return (f"implicit solve not converged (residual {report['residual']:.2g} > "
+            f'solver.tolerance {tolerance:g})')
+
+
 def _marker_key(shape, geometry):
     return (shape, {k: np.asarray(v).tobytes() for k, v in geometry.items()})
 
@@ -1090,13 +1101,10 @@ class ClothNode(Node):
                          'solver_residual': float(r['residual']),
                          'solver_converged': r['converged'],
                          'solver_unconverged_steps': r['unconverged_steps']})
-            # linearised (solver.iterations 1): one Newton step by design, its residual
-            # reported but not a warning
-            if (not r['converged'] and level == DiagnosticStatus.OK
-                    and self.sim.solver_iterations > 1):
-                level, msg = DiagnosticStatus.WARN, (
-                    f"implicit solve not converged (residual {r['residual']:.2g} > "
-                    f'solver.tolerance {self.sim.solver_tolerance:g})')
+            warning = solver_warning(r, self.sim.solver_iterations,
+                                     self.sim.solver_tolerance)
+            if warning is not None and level == DiagnosticStatus.OK:
+                level, msg = DiagnosticStatus.WARN, warning
         if self.sim.obstacles:
             cs = self.sim.contact_state()
             vals['contacts'] = cs['contacts']
