@@ -12,7 +12,7 @@ BENCH_STAMP := $(VENV)/.bench-installed
 PKG_SOURCES := $(shell find cosserat_ros config resource launch rviz -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
-.PHONY: install run view test validate bench lint clean
+.PHONY: install run view test validate bench clean
 
 install: $(PKG_STAMP)
 
