@@ -26,11 +26,12 @@ Newton's method:
   quasistatic finite elements"; the solution is the same, only the path to it: a cloth
   swinging under compression otherwise meets negative curvature in most Newton
   iterations and the line search cuts the truncated step to 1/16-1/1000);
-  preconditioned by a sparse factorization of P = the mass and damping + the membrane's whole Hessian (its positive
-  part) + the bending's and coupling's per-vertex 3x3 blocks (``hessian_blocks``, positive
-  semi-definite; where the bending dominates the inertia at the mesh's scale, its whole
-  plate operator instead of its blocks), kept across iterations and steps until CG needs
-  more than twice what it took with it fresh (``ImplicitSolver._preconditioner``);
+  preconditioned by a sparse factorization of P = the mass and damping + the membrane's
+  whole Hessian (its positive part) + the bending's and coupling's per-vertex 3x3 blocks
+  (``hessian_blocks``, positive semi-definite; where the bending dominates the inertia
+  at the mesh's scale, its whole plate operator instead of its blocks), kept across
+  iterations and steps until CG needs more than twice what it took with it fresh
+  (``ImplicitSolver._preconditioner``);
   stopped at the inexact-Newton forcing tolerance ``|r + A+ p| <= eta |r|`` (Eisenstat &
   Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A+ q <= 0`` (negative
   curvature, which the bending can still have: Steihaug truncation, Nocedal & Wright
@@ -77,13 +78,13 @@ layer is answered afterwards by the explicit update's contact
 (:func:`.update.contact_list`).
 
 With ``iterations = 1`` the solver is the linearised backward Euler of Baraff & Witkin
-1998 (Sec. 4.1; MuJoCo's implicit integrators are linearised too): one Newton step a
-step, from the same start, its linear system solved to ``LINEARIZED_FORCING``, the
-tolerance not asked for. Statics are unchanged (at rest the residual is the static
-balance, and each step's Newton step continues from the last), the dynamics lose
-accuracy where the forces are far from linear over a step (11 oz denim swinging down
-from flat at 40 x 40: its mean height within 2.5% of the converged solve's over the
-first 0.8 s, 6% at 1 s, and 3x faster; docs/performance.md). The report still gives the residual it leaves.
+1998 ("Large steps in cloth simulation"): one Newton step a step, from the same start,
+its linear system solved to ``LINEARIZED_FORCING``, the tolerance not asked for. Statics
+are unchanged (at rest the residual is the static balance, and each step's Newton step
+continues from the last); the dynamics lose accuracy where the forces are far from
+linear over a step (11 oz denim swinging down from flat at 40 x 40: its mean height
+within 2.5% of the converged solve's over the first 0.8 s, 6% at 1 s, and 3x faster;
+docs/performance.md). The report still gives the residual it leaves.
 
 ``ImplicitSolver.step`` has the explicit solver's signature; ``last`` holds what the last
 step's solve did (Newton iterations, CG iterations, residual, converged).
