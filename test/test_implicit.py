@@ -226,14 +226,21 @@ def test_a_steady_acceleration_is_carried_on_into_the_next_step():
     np.testing.assert_allclose(sim.state.v[:, 2], -3 * 9.81 * dt, rtol=1e-9)
 
 
-def swing(n, steps):
-    """11 oz denim (E h 1219 N/m, D 1.0e-5 N m, 0.324 kg/m^2) released flat from its two
-    top corners at 1/60 s: it swings down, and its stiff membrane buckles under
-    compression. Returns the Newton iterations and negative-curvature stops per step and
-    the largest edge strain at the end."""
+def denim_swing(n, iterations=20):
+    """11 oz denim (E h 1219 N/m, D 1.0e-5 N m, 0.324 kg/m^2), n x n, held flat by its
+    two top corners under vertical gravity, implicit at 1/60 s: released, it swings down,
+    and its stiff membrane buckles under compression."""
     sim = hanging(n, fabric(eh=1219.2, d=1.0072e-5, density=0.324, damping=0.1),
                   'implicit', 1 / 60)
     sim.gravity = (0.0, 0.0, -9.81)
+    sim.solver_iterations = iterations
+    return sim
+
+
+def swing(n, steps):
+    """The Newton iterations and negative-curvature stops per step of ``denim_swing``, and
+    its largest edge strain at the end."""
+    sim = denim_swing(n)
     its, neg = [], []
     for _ in range(steps):
         sim.step(1)
@@ -258,11 +265,8 @@ def test_a_buckling_swing_is_solved_by_projected_newton(monkeypatch):
 
 
 def mean_heights(n, iterations, steps=30, every=6):
-    """The swing of ``swing`` (denim from flat): the mean height every ``every`` steps."""
-    sim = hanging(n, fabric(eh=1219.2, d=1.0072e-5, density=0.324, damping=0.1),
-                  'implicit', 1 / 60)
-    sim.gravity = (0.0, 0.0, -9.81)
-    sim.solver_iterations = iterations
+    """``denim_swing``'s mean height every ``every`` steps, and its Newton iterations."""
+    sim = denim_swing(n, iterations)
     z, its = [], []
     for k in range(steps):
         sim.step(1)
@@ -308,7 +312,7 @@ def test_a_blow_up_is_caught_before_it_is_published_and_restores_the_state():
 
 def test_an_unconverged_solve_is_reported():
     sim = hanging(12, fabric(eh=5e3, d=1e-3), 'implicit', 1.0 / 60.0)
-    sim.solver_iterations = 2              # (1 is the linearised solver, tested below)
+    sim.solver_iterations = 2              # (1 is the linearised solver, tested above)
     sim.solver_tolerance = 1e-9
     sim.step(3)
     r = sim.solve_report
