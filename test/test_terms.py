@@ -56,6 +56,23 @@ def test_gradient_is_the_central_difference_of_the_energy(term, name):
     _assert_gradient_is_the_central_difference(t, model, coeff, x)
 
 
+@pytest.mark.parametrize('phi', [MAT.phi, 0.0])
+@pytest.mark.parametrize('name', ['irregular', 'icosphere'])
+def test_the_one_pass_elastic_energy_is_the_terms_sum(name, phi):
+    # energy.elastic_energy (the implicit solver's line search) against each term's own
+    # energy: the same fields from one vertex pass, without the coupling's when phi = 0
+    from cosserat_ros.core.energy import elastic_energy
+    from cosserat_ros.core.terms.jet import model_scratch
+    model = _model(name)
+    coeff = model.coefficients(Material(zeta=MAT.zeta, xi=MAT.xi, phi=phi,
+                                        density=MAT.density))
+    x = _deformed(model, 0.01)
+    parts = [t.energy(model, coeff, x) for t in TERMS.values()]
+    assert all(p != 0.0 for p in parts[:2]) and (parts[2] != 0.0) == (phi != 0.0)
+    assert elastic_energy(model, coeff, x, model_scratch(model)) == pytest.approx(
+        sum(parts), rel=1e-13)
+
+
 def _fd_blocks(t, model, coeff, x, h=1e-6):
     """Diagonal blocks (n,3,3) of the central difference of the term's gradient."""
     n = len(x)

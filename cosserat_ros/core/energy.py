@@ -24,9 +24,9 @@ import numpy as np
 
 from .compiled import kernel
 from .material import bilinear
-from .terms import coupling, jet, membrane
+from .terms import bending, coupling, jet, membrane
 
-__all__ = ['report', 'ENERGY_KEYS']
+__all__ = ['report', 'elastic_energy', 'ENERGY_KEYS']
 
 #: the keys of the report's totals, in the order the node publishes them
 ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'elastic', 'gravity',
@@ -115,6 +115,18 @@ def elastic_fields(model, coeff, x: np.ndarray, scratch: np.ndarray):
     jet.vertex_energies(x, j, model.vertices, coeff.stab, coeff.xi, coeff.phi, eb, scratch,
                         kap, estab)
     return face_energy, kap, eb, estab
+
+
+def elastic_energy(model, coeff, x: np.ndarray, scratch: np.ndarray) -> float:
+    """E_m + E_b + E_c [J] at x (n,3): the sum of the terms' ``energy``, from the one
+    evaluation of their fields the report makes (:func:`elastic_fields`: one vertex pass
+    for the bending's and the coupling's curvature changes, the strain averages only with
+    phi != 0), half the time of the terms' own three (issue 6's 80 x 80 sheet: 0.66
+    against 1.33 ms; the implicit solver's line search takes ~5 a step)."""
+    face_energy, kap, eb, estab = elastic_fields(model, coeff, x, scratch)
+    return (float(face_energy.sum()) + bending.energy_from_fields(model, coeff, kap, estab)
+            + (coupling.energy_from_fields(model, coeff, eb, kap) if coeff.phi != 0.0
+               else 0.0))
 
 
 def report(model, coeff, state, control, dt: float, scratch: np.ndarray,

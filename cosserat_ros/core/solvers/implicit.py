@@ -97,7 +97,9 @@ import numpy as np
 
 from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
+from ..energy import elastic_energy
 from ..terms import TERMS
+from ..terms.jet import model_scratch
 from ..terms.membrane import add_compression_product, compression_stress
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .update import contact_list
@@ -190,6 +192,7 @@ class ImplicitSolver:
         self._tens = np.empty((model.mesh.n_faces, 3))
         self._tq = np.empty((model.mesh.n_faces, 2, 3))
         self._contacts = ObstacleConstraints(n)
+        self._scratch = model_scratch(model)
         #: the last step's acceleration (v' - v) / dt, for the next step's predictor
         self._accel = np.zeros((n, 3))
 
@@ -200,7 +203,9 @@ class ImplicitSolver:
         self.explicit.internal_forces(np.ascontiguousarray(x), coeff, out)
 
     def _energy(self, coeff, x: np.ndarray) -> float:
-        return sum(term.energy(self.model, coeff, x) for term in TERMS.values())
+        """The elastic energy E(x) [J] (the terms' sum, from one pass over their fields:
+        ``energy.elastic_energy``)."""
+        return elastic_energy(self.model, coeff, np.ascontiguousarray(x), self._scratch)
 
     def _plate(self):
         """The plate operator ``bending.plate_matrix`` (COO, for D = 1 N m); built once,
