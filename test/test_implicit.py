@@ -271,6 +271,7 @@ def mean_heights(n, iterations, steps=30, every=6):
     for k in range(steps):
         sim.step(1)
         its.append(sim.solve_report['iterations'])
+        assert sim.solve_report['linearized'] == (iterations == 1)
         if k % every == every - 1:
             z.append(sim.state.x[:, 2].mean())
     return np.array(z), np.array(its)
@@ -317,8 +318,9 @@ def test_an_unconverged_solve_is_reported():
     sim.step(3)
     r = sim.solve_report
     assert set(r) == {'iterations', 'cg_iterations', 'factorizations', 'residual',
-                      'negative_curvature', 'converged', 'unconverged_steps'}
+                      'negative_curvature', 'converged', 'linearized', 'unconverged_steps'}
     assert r['iterations'] == 2 and not r['converged'] and r['unconverged_steps'] == 3
+    assert not r['linearized']                   # two iterations: a failed solve
     assert 1e-9 < r['residual'] < 1.0            # two Newton iterations did reduce it
     # more iterations converge it (to 1e-6: 1e-9 is below the round-off floor of 1e-8 of
     # the largest force, where a solve also stops, converged, short of the tolerance)

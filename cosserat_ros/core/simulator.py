@@ -395,12 +395,14 @@ class ClothSimulator:
         across steps until CG needs too many iterations), ``negative_curvature`` (CG
         solves stopped where the bending's Hessian is not positive), ``residual`` (in
         :attr:`solver_tolerance`'s units),
-        ``converged``, and ``unconverged_steps`` since construction."""
+        ``converged``, ``linearized`` (the step was the linearised backward Euler of
+        :attr:`solver_iterations` 1, unconverged by design) and ``unconverged_steps``
+        since construction."""
         r = self._implicit('solve_report').last
         return {'iterations': r.iterations, 'cg_iterations': r.cg_iterations,
                 'factorizations': r.factorizations,
                 'negative_curvature': r.negative_curvature, 'residual': r.residual,
-                'converged': r.converged,
+                'converged': r.converged, 'linearized': r.linearized,
                 'unconverged_steps': r.unconverged_steps}
 
     # ------------------------------------------------------------------ dynamics

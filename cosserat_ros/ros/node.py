@@ -96,12 +96,11 @@ PAUSED_TICK = 0.2
 MESH_BUILD_PERIOD = 2.0
 
 
-def solver_warning(report: Dict[str, object], iterations: int,
-                   tolerance: float) -> Optional[str]:
+def solver_warning(report: Dict[str, object], tolerance: float) -> Optional[str]:
     """The WARN message of an implicit step's solve (``ClothSimulator.solve_report``), or
-    None: an unconverged solve warns, the linearised solver (``iterations`` 1: one Newton
+    None: an unconverged solve warns, the linearised solver (``linearized``: one Newton
     step a step by design) does not; both report their residual."""
-    if report['converged'] or iterations == 1:
+    if report['converged'] or report['linearized']:
         return None
     return (f"implicit solve not converged (residual {report['residual']:.2g} > "
             f'solver.tolerance {tolerance:g})')
@@ -1101,8 +1100,7 @@ class ClothNode(Node):
                          'solver_residual': float(r['residual']),
                          'solver_converged': r['converged'],
                          'solver_unconverged_steps': r['unconverged_steps']})
-            warning = solver_warning(r, self.sim.solver_iterations,
-                                     self.sim.solver_tolerance)
+            warning = solver_warning(r, self.sim.solver_tolerance)
             if warning is not None and level == DiagnosticStatus.OK:
                 level, msg = DiagnosticStatus.WARN, warning
         if self.sim.obstacles:

@@ -142,6 +142,9 @@ class SolveReport:
     residual: float = 0.0
     #: whether it fell below the tolerance
     converged: bool = True
+    #: whether the step was the linearised backward Euler (``iterations`` 1, module
+    #: docstring): unconverged by design, not a failure
+    linearized: bool = False
     #: steps whose solve stopped at the iteration limit, since construction
     unconverged_steps: int = 0
 
@@ -195,6 +198,12 @@ class ImplicitSolver:
         self._scratch = model_scratch(model)
         #: the last step's acceleration (v' - v) / dt, for the next step's predictor
         self._accel = np.zeros((n, 3))
+
+    @property
+    def linearized(self) -> bool:
+        """Whether a step is the linearised backward Euler: one Newton step, its linear
+        system solved to :data:`LINEARIZED_FORCING` (``iterations`` 1)."""
+        return self.iterations == 1
 
     # ------------------------------------------------------------------ pieces
     def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
@@ -484,7 +493,7 @@ class ImplicitSolver:
 
                 def pinv(q, base=base):
                     return filt(base(filt(q.copy())))
-            eta = (LINEARIZED_FORCING if self.iterations == 1
+            eta = (LINEARIZED_FORCING if self.linearized
                    else min(0.5, np.sqrt(_norm(r) / r0)))
             p, used = self._cg(xk, f, r, diag, drag_dt, pinv, filt, coeff, eta)
             if self._fresh_cg is None:
@@ -531,6 +540,7 @@ class ImplicitSolver:
         rep.iterations += it
         rep.residual = res
         rep.converged = bool(res <= self.tolerance or rmax <= floor)
+        rep.linearized = self.linearized
         if not rep.converged:
             rep.unconverged_steps += 1
         if not np.all(np.isfinite(xk)):
