@@ -188,8 +188,16 @@ class ImplicitSolver:
         self._pinv = None
         self._pinv_key = None
         #: CG iterations above which the factored preconditioner is rebuilt, when they
-        #: are also more than twice what it took when fresh (``_fresh_cg``)
+        #: are also more than twice what it took when fresh (``_fresh_cg``). It is
+        #: rebuilt where the next solves run: at the next Newton iterate of the step;
+        #: after a step's last one, at the step's solution, the linearised solver at the
+        #: next step's start, its one iterate. A stiff cloth swinging (11 oz denim, 24 x
+        #: 24) needs ~10x the CG iterations with P from one step of motion before (the
+        #: membrane's stiff directions turned); a P kept for many steps (a sheet
+        #: settling) is better taken at a solution than at a start, which carries the
+        #: fall's transient (docs/performance.md)
         self.refresh = 8
+        self._stale = False
         self._fresh_cg = None
         self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
         self._tens = np.empty((model.mesh.n_faces, 3))
@@ -477,16 +485,20 @@ class ImplicitSolver:
         res = rmax / rmax0 if rmax0 > 0.0 else 0.0
         r0 = _norm(r)
         it = 0
+        key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
+               held.tobytes(), drag is None)
+
+        def factor():
+            self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
+            self._pinv_key = key
+            self._fresh_cg = None
+            self._stale = False
+            rep.factorizations += 1
         while res > self.tolerance and rmax > floor and it < self.iterations:
             if not np.isfinite(res):
                 return None
-            key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
-                   held.tobytes(), drag is None)
-            if self._pinv is None or self._pinv_key != key:
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
-                self._pinv_key = key
-                self._fresh_cg = None
-                rep.factorizations += 1
+            if self._pinv is None or self._pinv_key != key or self._stale:
+                factor()
             pinv = self._pinv
             if con is not None and con.active:
                 base = pinv
@@ -499,14 +511,12 @@ class ImplicitSolver:
             if self._fresh_cg is None:
                 self._fresh_cg = used
             elif used > max(self.refresh, 2 * self._fresh_cg):
-                # P has drifted from A: factor it again. Not merely because CG needs many
-                # iterations: with the bending's diagonal blocks only (beta below
-                # PLATE_RATIO) even a fresh P needs many (~17 a solve on issue 6's
-                # 80 x 80 sheet without the plate operator), and a factorization costs
-                # ~30 solves (~60 and ~2 ms there)
-                self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
-                self._fresh_cg = None
-                rep.factorizations += 1
+                # P has drifted from A: factor it again (``_stale``, ``refresh``). Not
+                # merely because CG needs many iterations: with the bending's diagonal
+                # blocks only (beta below PLATE_RATIO) even a fresh P needs many (~17 a
+                # solve on issue 6's 80 x 80 sheet without the plate operator), and a
+                # factorization costs ~30 solves (~60 and ~2 ms there)
+                self._stale = True
             rep.cg_iterations += used
             if phi is None:
                 phi = potential(xk)
@@ -537,6 +547,8 @@ class ImplicitSolver:
             rmax = float(np.max(np.linalg.norm(r, axis=1)))
             res = rmax / rmax0
             it += 1
+        if self._stale and not self.linearized and self._pinv_key == key:
+            factor()                             # at the step's solution (``refresh``)
         rep.iterations += it
         rep.residual = res
         rep.converged = bool(res <= self.tolerance or rmax <= floor)
