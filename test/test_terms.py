@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from cosserat_ros.core.energy import elastic_energy
 from cosserat_ros.core.model import Model
 from cosserat_ros.core.terms import bending, coupling, membrane, TERMS
+from cosserat_ros.core.terms.jet import model_scratch
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import Material
 
@@ -61,8 +63,6 @@ def test_gradient_is_the_central_difference_of_the_energy(term, name):
 def test_the_one_pass_elastic_energy_is_the_terms_sum(name, phi):
     # energy.elastic_energy (the implicit solver's line search) against each term's own
     # energy: the same fields from one vertex pass, without the coupling's when phi = 0
-    from cosserat_ros.core.energy import elastic_energy
-    from cosserat_ros.core.terms.jet import model_scratch
     model = _model(name)
     coeff = model.coefficients(Material(zeta=MAT.zeta, xi=MAT.xi, phi=phi,
                                         density=MAT.density))
