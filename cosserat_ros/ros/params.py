@@ -97,8 +97,9 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                     'implicit only); 1 = linearised backward Euler (one '
                                     'Newton step, tolerance not asked for)',
                                     ip=[IntegerRange(from_value=1, to_value=1000, step=1)])),
-    'solver.tolerance': (1e-3, _desc('Implicit convergence: the largest vertex residual '
-                                     'force relative to the start of the step',
+    'solver.tolerance': (1e-3, _desc('Implicit convergence: every vertex residual force '
+                                     'relative to the larger of the step start residual '
+                                     'and the vertex load (weight, applied force)',
                                      fp=_fp(1e-12, 0.5))),
     'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
     'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
