@@ -127,6 +127,26 @@ LINEARIZED_FORCING = 0.1
 PLATE_RATIO = 10.0
 
 
+_BLAS = []
+
+
+def _serial_blas():
+    """A context in which BLAS runs on one thread (``threadpoolctl``), restored after.
+
+    SuperLU's factorization and triangular solves call BLAS, and OpenBLAS's worker
+    threads, once woken by a large enough call, spin after it and take the cores from
+    the compiled kernels that run next: on issue 6's 160 x 160 sheet an internal force
+    took 15 ms inside the solve instead of 2.6, the membrane's compression product 12
+    instead of 0.6, a step of the fall 2253 ms instead of 1485, while SuperLU's own calls
+    are no faster on two threads (38 ms a solve either way). Each step runs in it
+    (:meth:`ImplicitSolver.step`); the process's setting is back after the step."""
+    if not _BLAS:
+        import scipy.sparse.linalg  # noqa: F401  (its BLAS loaded, so the controller sees it)
+        from threadpoolctl import ThreadpoolController
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api='blas')
+
+
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
     worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
@@ -343,9 +363,10 @@ class ImplicitSolver:
         """Advance ``nsteps`` backward-Euler steps in place; returns the steps completed
         (fewer: the next one produced a non-finite value or a speed above sqrt(vmax2),
         ``state`` is then invalid and the caller restores it)."""
-        for s in range(nsteps):
-            if not self._one_step(state, control, coeff, dt, vmax2):
-                return s
+        with _serial_blas():
+            for s in range(nsteps):
+                if not self._one_step(state, control, coeff, dt, vmax2):
+                    return s
         return nsteps
 
     def _one_step(self, state, control, coeff, dt, vmax2) -> bool:
