@@ -55,9 +55,10 @@ Newton's method:
   solve to 1e-9 at every step, 8e-6 before; docs/performance.md). Or
   after ``iterations`` Newton iterations; a residual below 1e-8 of the largest force on
   a vertex (elastic, applied or weight) is round-off: a cloth at rest takes none. The
-  start is ``x + dt v``, where the vertices coast to (R_0 is the residual there), or, without obstacles, that plus ``dt^2`` times the last step's
-  acceleration where Phi is lower: a steady fall or swing then starts at or near its
-  solution (issue 6 at N = 40, steps 20-80: 11.3 CG iterations a step -> 9.8).
+  start is ``x + dt v``, where the vertices coast to (R_0 is the residual there), or,
+  without obstacles, that plus ``dt^2`` times the last step's acceleration where Phi is
+  lower: a steady fall or swing then starts at or near its solution (issue 6 at N = 40,
+  steps 20-80: 11.3 CG iterations a step -> 9.8).
 
 What backward Euler does to energy: it dissipates, strongly for the modes of period
 below ~dt (the stiff membrane modes) and weakly for slow ones (a mode of frequency omega
@@ -137,7 +138,7 @@ def _serial_blas():
     threads, once woken by a large enough call, spin after it and take the cores from
     the compiled kernels that run next: on issue 6's 160 x 160 sheet an internal force
     took 15 ms inside the solve instead of 2.6, the membrane's compression product 12
-    instead of 0.6, a step of the fall 2253 ms instead of 1485, while SuperLU's own calls
+    instead of 0.6, a step of the fall 2253 ms instead of 1465, while SuperLU's own calls
     are no faster on two threads (38 ms a solve either way). Each step runs in it
     (:meth:`ImplicitSolver.step`); the process's setting is back after the step."""
     if not _BLAS:
