@@ -6,10 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from threadpoolctl import threadpool_info, threadpool_limits
 
 from cosserat_ros.core import scenarios as sc
-from cosserat_ros.core.solvers import implicit
 from cosserat_ros.mesh import grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material, SimulationDiverged
 from cosserat_ros.tools.bench import scene_simulator
@@ -254,25 +252,6 @@ def test_a_settling_sheet_is_converged_to_its_load_not_to_its_last_imbalance():
     assert max(err) < 1e-3 * sag, (max(err), sag)
     assert sim.solve_report['unconverged_steps'] == 0
     assert np.mean(cg[60:]) < 2.5, np.mean(cg[60:])
-
-
-def test_blas_runs_on_one_thread_inside_a_step_and_as_before_after_it(monkeypatch):
-    """SuperLU's BLAS calls on one thread inside an implicit step (implicit._serial_blas:
-    OpenBLAS's spinning workers took the cores from the compiled kernels), the process's
-    own setting back after the step."""
-    seen = []
-    newton = implicit.ImplicitSolver._newton
-
-    def spy(self, *args, **kwargs):
-        seen.extend(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas')
-        return newton(self, *args, **kwargs)
-    monkeypatch.setattr(implicit.ImplicitSolver, '_newton', spy)
-    sim = hanging(6, fabric(), 'implicit', 1 / 60)
-    with threadpool_limits(limits=2, user_api='blas'):
-        sim.step(3)
-        after = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']
-    assert seen and set(seen) == {1}
-    assert after and set(after) == {2}
 
 
 def denim_swing(n, iterations=20):

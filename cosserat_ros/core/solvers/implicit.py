@@ -55,10 +55,9 @@ Newton's method:
   solve to 1e-9 at every step, 8e-6 before; docs/performance.md). Or
   after ``iterations`` Newton iterations; a residual below 1e-8 of the largest force on
   a vertex (elastic, applied or weight) is round-off: a cloth at rest takes none. The
-  start is ``x + dt v``, where the vertices coast to (R_0 is the residual there), or,
-  without obstacles, that plus ``dt^2`` times the last step's acceleration where Phi is
-  lower: a steady fall or swing then starts at or near its solution (issue 6 at N = 40,
-  steps 20-80: 11.3 CG iterations a step -> 9.8).
+  start is ``x + dt v``, where the vertices coast to (R_0 is the residual there), or, without obstacles, that plus ``dt^2`` times the last step's
+  acceleration where Phi is lower: a steady fall or swing then starts at or near its
+  solution (issue 6 at N = 40, steps 20-80: 11.3 CG iterations a step -> 9.8).
 
 What backward Euler does to energy: it dissipates, strongly for the modes of period
 below ~dt (the stiff membrane modes) and weakly for slow ones (a mode of frequency omega
@@ -126,26 +125,6 @@ LINEARIZED_FORCING = 0.1
 #: inertia by more than this (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet at
 #: N = 40, beta 14, gained from it, the hanging denim at N = 80, beta 7, lost)
 PLATE_RATIO = 10.0
-
-
-_BLAS = []
-
-
-def _serial_blas():
-    """A context in which BLAS runs on one thread (``threadpoolctl``), restored after.
-
-    SuperLU's factorization and triangular solves call BLAS, and OpenBLAS's worker
-    threads, once woken by a large enough call, spin after it and take the cores from
-    the compiled kernels that run next: on issue 6's 160 x 160 sheet an internal force
-    took 15 ms inside the solve instead of 2.6, the membrane's compression product 12
-    instead of 0.6, a step of the fall 2253 ms instead of 1465, while SuperLU's own calls
-    are no faster on two threads (38 ms a solve either way). Each step runs in it
-    (:meth:`ImplicitSolver.step`); the process's setting is back after the step."""
-    if not _BLAS:
-        import scipy.sparse.linalg  # noqa: F401  (its BLAS loaded, so the controller sees it)
-        from threadpoolctl import ThreadpoolController
-        _BLAS.append(ThreadpoolController())
-    return _BLAS[0].limit(limits=1, user_api='blas')
 
 
 def _norm(a: np.ndarray) -> float:
@@ -364,10 +343,9 @@ class ImplicitSolver:
         """Advance ``nsteps`` backward-Euler steps in place; returns the steps completed
         (fewer: the next one produced a non-finite value or a speed above sqrt(vmax2),
         ``state`` is then invalid and the caller restores it)."""
-        with _serial_blas():
-            for s in range(nsteps):
-                if not self._one_step(state, control, coeff, dt, vmax2):
-                    return s
+        for s in range(nsteps):
+            if not self._one_step(state, control, coeff, dt, vmax2):
+                return s
         return nsteps
 
     def _one_step(self, state, control, coeff, dt, vmax2) -> bool:
