@@ -375,8 +375,9 @@ class ClothSimulator:
 
     @property
     def solver_tolerance(self) -> float:
-        """Convergence of an implicit step: its largest vertex residual force relative to
-        the step's start (its whole unbalanced force), default 1e-3."""
+        """Convergence of an implicit step: every vertex's residual force relative to the
+        larger of the step's start residual (its whole unbalanced force) and the vertex's
+        own load (weight, applied force), default 1e-3 (``core/solvers/implicit.py``)."""
         return self._implicit('solver_tolerance').tolerance
 
     @solver_tolerance.setter
@@ -384,8 +385,8 @@ class ClothSimulator:
         s = self._implicit('solver_tolerance')
         value = self._check_positive(value, 'solver_tolerance')
         if value >= 1.0:
-            raise ValueError(f'solver_tolerance must be below 1 (a fraction of the start\'s '
-                             f'residual), got {value!r}')
+            raise ValueError(f'solver_tolerance must be below 1 (a fraction of the step\'s '
+                             f'forces), got {value!r}')
         s.tolerance = value
 
     @property
