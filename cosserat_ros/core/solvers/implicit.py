@@ -477,31 +477,35 @@ class ImplicitSolver:
             return float(phi_)
 
         r = residual(xk, f)
-        rmax = float(np.max(np.linalg.norm(r, axis=1)))
+        norms = np.linalg.norm(r, axis=1)
         if scale[0] == 0.0:
-            scale[0] = rmax
-        rmax0 = max(rmax, scale[0])
+            scale[0] = float(norms.max())
         # the tolerance's scale per vertex: R_0, or the vertex's own load (docstring)
-        denom = np.maximum(np.maximum(rmax0, outer), 1e-300)
+        denom = np.maximum(np.maximum(max(float(norms.max()), scale[0]), outer), 1e-300)
 
-        def rel(rr):
-            return float(np.max(np.linalg.norm(rr, axis=1) / denom))
+        def measure(rr):
+            """(max_i |r_i|, the residual in the tolerance's units) of residual rr."""
+            nr = np.linalg.norm(rr, axis=1)
+            return float(nr.max()), float(np.max(nr / denom))
+
+        def unmet(res_):
+            # the linearised solver takes its one step whatever the residual (the
+            # tolerance is not asked for): statics are then reached to round-off
+            return self.linearized or res_ > self.tolerance
+        rmax, res = measure(r)
         # below this the residual is round-off (and the finite-difference products'
         # error): 1e-8 of the largest force on a vertex, elastic, applied or weight
         floor = 1e-8 * float(np.max(np.linalg.norm(f, axis=1) + outer))
         floor = max(floor, 1e-300)
         phi = None
-        # the linearised solver takes its one step whatever the residual (the tolerance
-        # is not asked for): statics are then reached to round-off, as before
-        if guess is not None and rmax > floor and (self.linearized or rel(r) > self.tolerance):
+        if guess is not None and rmax > floor and unmet(res):
             phi = potential(xk)
             pg = potential(guess)
             if pg < phi:
                 xk[:] = guess
                 phi = pg
                 r = residual(xk, f)
-                rmax = float(np.max(np.linalg.norm(r, axis=1)))
-        res = rel(r)
+                rmax, res = measure(r)
         if not np.isfinite(res):
             return None                          # a non-finite force at the start
         r0 = _norm(r)
@@ -515,8 +519,7 @@ class ImplicitSolver:
             self._fresh_cg = None
             self._stale = False
             rep.factorizations += 1
-        while ((res > self.tolerance or self.linearized) and rmax > floor
-               and it < self.iterations):
+        while unmet(res) and rmax > floor and it < self.iterations:
             if not np.isfinite(res):
                 return None
             if self._pinv is None or self._pinv_key != key or self._stale:
@@ -566,8 +569,7 @@ class ImplicitSolver:
             xk[:] = xt
             phi = pt
             r = rt if rt is not None else residual(xk, f)
-            rmax = float(np.max(np.linalg.norm(r, axis=1)))
-            res = rel(r)
+            rmax, res = measure(r)
             it += 1
         if self._stale and not self.linearized and self._pinv_key == key:
             factor()                             # at the step's solution (``refresh``)
