@@ -49,7 +49,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms
-from .jet import cross, floored_normal, gather, jet_energies, jet_fields
+from .jet import gather, jet_energies, jet_fields, stencil_normal
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'energy_from_fields', 'plate_matrix']
 
@@ -82,22 +82,7 @@ def gn_coefficients(x, st_ptr, st_idx, st_w, st_uv, dual_area, ainv, stab, xi, c
     for i in nb.prange(x.shape[0]):
         p0 = st_ptr[i]
         p1 = st_ptr[i + 1]
-        a10 = 0.0
-        a11 = 0.0
-        a12 = 0.0
-        a20 = 0.0
-        a21 = 0.0
-        a22 = 0.0
-        for k in range(p0, p1):
-            j = st_idx[k]
-            a10 += st_w[0, k] * x[j, 0]
-            a11 += st_w[0, k] * x[j, 1]
-            a12 += st_w[0, k] * x[j, 2]
-            a20 += st_w[1, k] * x[j, 0]
-            a21 += st_w[1, k] * x[j, 1]
-            a22 += st_w[1, k] * x[j, 2]
-        c0, c1, c2 = cross(a10, a11, a12, a20, a21, a22)
-        n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+        n0, n1, n2 = stencil_normal(x, st_idx, st_w, p0, p1)
         normals[i, 0] = n0
         normals[i, 1] = n1
         normals[i, 2] = n2

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..compiled import kernel
 from ..material import bilinear, bilinear_forms, contract
-from .jet import floored_normal, gather, jet_energies, jet_fields
+from .jet import gather, jet_energies, jet_fields, stencil_normal
 from .membrane import deformation_gradient, green_strain
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'epsbar', 'add_face_side', 'corner_rows',
@@ -234,24 +234,7 @@ def entry_blocks(x, st_ptr, st_idx, st_w, faces, dinv, vf_ptr, vf_face, vf_K, vf
     for i in nb.prange(x.shape[0]):
         p0 = st_ptr[i]
         p1 = st_ptr[i + 1]
-        a10 = 0.0
-        a11 = 0.0
-        a12 = 0.0
-        a20 = 0.0
-        a21 = 0.0
-        a22 = 0.0
-        for k in range(p0, p1):
-            j = st_idx[k]
-            a10 += st_w[0, k] * x[j, 0]
-            a11 += st_w[0, k] * x[j, 1]
-            a12 += st_w[0, k] * x[j, 2]
-            a20 += st_w[1, k] * x[j, 0]
-            a21 += st_w[1, k] * x[j, 1]
-            a22 += st_w[1, k] * x[j, 2]
-        c0 = a11 * a22 - a12 * a21
-        c1 = a12 * a20 - a10 * a22
-        c2 = a10 * a21 - a11 * a20
-        n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+        n0, n1, n2 = stencil_normal(x, st_idx, st_w, p0, p1)
         nrm = (n0, n1, n2)
         i11 = ainv[i, 0]
         i12 = ainv[i, 1]

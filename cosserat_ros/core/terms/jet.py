@@ -81,6 +81,32 @@ def floored_normal(c0, c1, c2, cn):
 
 
 @kernel(inline='always')
+def stencil_normal(x, st_idx, st_w, p0, p1):
+    """Vertex i's floored normal (:func:`floored_normal`) from its stencil entries p0..p1
+    (``st_idx``, the weights ``st_w`` of its jet's first derivatives): the tangents
+    ``a_alpha = sum_k w_alpha,k x_k`` (Eq. 8) and ``c = a_1 x a_2``. For the Hessian
+    blocks' kernels (``bending``, ``coupling``); the vertex pass has its own, written for
+    the vectoriser."""
+    a10 = 0.0
+    a11 = 0.0
+    a12 = 0.0
+    a20 = 0.0
+    a21 = 0.0
+    a22 = 0.0
+    for k in range(p0, p1):
+        j = st_idx[k]
+        a10 += st_w[0, k] * x[j, 0]
+        a11 += st_w[0, k] * x[j, 1]
+        a12 += st_w[0, k] * x[j, 2]
+        a20 += st_w[1, k] * x[j, 0]
+        a21 += st_w[1, k] * x[j, 1]
+        a22 += st_w[1, k] * x[j, 2]
+    c0, c1, c2 = cross(a10, a11, a12, a20, a21, a22)
+    n0, n1, n2, _, _ = floored_normal(c0, c1, c2, np.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+    return n0, n1, n2
+
+
+@kernel(inline='always')
 def phi_dot(u, v, q0, q1, q2, q3, q4, q5, q6, q7, q8):
     """phi(u, v) . q for the cubic design row phi = (u, v, u^2/2, uv, v^2/2, u^3/6, u^2 v/2,
     u v^2/2, v^3/6) (geometry.design_matrix), in Horner form."""
