@@ -371,6 +371,75 @@ def test_a_blow_up_is_caught_before_it_is_published_and_restores_the_state():
     assert np.array_equal(sim.state.x, before)
 
 
+def test_a_non_finite_force_inside_the_solve_is_a_divergence(monkeypatch):
+    """A force that turns non-finite after the step's start (a NaN residual meets neither
+    of the Newton loop's tests, and the line search asks only Phi to be finite) fails
+    the step: SimulationDiverged, the state as before, no NaN anywhere."""
+    sim = hanging(8, fabric(), 'implicit', 1.0 / 60.0)
+    sim.step(2)
+    before = sim.state.x.copy()
+    solver = sim.solver
+    real = solver.internal_forces
+    calls = [0]
+
+    def poisoned(x, coeff, out):
+        real(x, coeff, out)
+        calls[0] += 1
+        if calls[0] > 1:                       # the start is finite, the solve's are not
+            out[5] = np.nan
+    monkeypatch.setattr(solver, 'internal_forces', poisoned)
+    with pytest.raises(SimulationDiverged):
+        sim.step(1)
+    assert np.array_equal(sim.state.x, before)
+    assert np.all(np.isfinite(sim.control.reaction))
+    assert not sim.solve_report['converged']
+
+
+def test_a_reset_starts_as_a_fresh_simulator():
+    """The predictor (the last step's acceleration) does not outlive a reset, a state set
+    from outside or a caught divergence: the linearised solver's step, which depends on
+    its start, is then the fresh simulator's to the bit."""
+    def sheet():
+        sim = hanging(6, fabric(), 'implicit', 1.0 / 60.0)
+        sim.gravity = (0.0, 0.0, -9.81)          # a fall: a steady acceleration to carry
+        sim.solver_iterations = 1
+        return sim
+    fresh = sheet()
+    fresh.step(1)
+    sim = sheet()
+    sim.step(5)
+    sim.reset()
+    sim.step(1)
+    assert np.array_equal(sim.state.x, fresh.state.x)
+    sim.step(4)
+    sim.set_positions(sim.mesh.vertices)
+    sim.set_velocities(np.zeros((sim.n_vertices, 3)))
+    sim.step(1)
+    assert np.array_equal(sim.state.x, fresh.state.x)
+
+
+def test_the_linearised_solver_is_not_counted_as_unconverged():
+    sim = hanging(6, fabric(), 'implicit', 1.0 / 60.0)
+    sim.solver_iterations = 1
+    sim.step(5)
+    assert sim.solve_report['linearized'] and sim.solve_report['unconverged_steps'] == 0
+
+
+def test_a_material_change_refactors_the_preconditioner():
+    """P is kept while the material is: a change of density alone (new mass arrays, the
+    same zeta, xi, phi) factors it again at the next step, every time. (P holds the
+    arrays it was factored with and compares them by identity; it compared their id(),
+    which a freed array's successor can take.)"""
+    sim = hanging(8, fabric(), 'implicit', 1.0 / 60.0)
+    sim.step(3)
+    for k in range(6):
+        m = sim.material
+        sim.material = Material(zeta=m.zeta, xi=m.xi, phi=m.phi,
+                                density=0.2 + 0.01 * (k % 2), damping=m.damping)
+        sim.step(1)
+        assert sim.solve_report['factorizations'] >= 1, k
+
+
 def test_an_unconverged_solve_is_reported():
     sim = hanging(12, fabric(eh=5e3, d=1e-3), 'implicit', 1.0 / 60.0)
     sim.solver_iterations = 2              # (1 is the linearised solver, tested above)

@@ -77,7 +77,8 @@ def _as_vec3(value, name: str) -> np.ndarray:
 
 
 class ClothSimulator:
-    """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29).
+    """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29, the
+    default) or by backward Euler (``solver='implicit'``).
 
     Parameters
     ----------
@@ -168,10 +169,12 @@ class ClothSimulator:
     def set_positions(self, x) -> None:
         """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp)."""
         self.state.x[:] = self._checked_state(x, 'positions')
+        self.solver.forget()
 
     @property
     def velocities(self) -> np.ndarray:
-        """Current velocities (n, 3) [m/s] (a copy; at the half step of the leapfrog)."""
+        """Current velocities (n, 3) [m/s] (a copy; the explicit solver's at the half step
+        of the leapfrog, the implicit solver's at the positions' time)."""
         return self.state.v.copy()
 
     def set_velocities(self, v) -> None:
@@ -179,6 +182,7 @@ class ClothSimulator:
         arr = self._checked_state(v, 'velocities')
         arr[self.control.pinned] = 0.0
         self.state.v[:] = arr
+        self.solver.forget()
 
     def _checked_state(self, value, name: str) -> np.ndarray:
         arr = np.array(value, dtype=np.float64)
@@ -343,6 +347,7 @@ class ClothSimulator:
         self._sync_pins()
         self.control.pin_velocity[:] = 0.0
         self.state.assign(State.at_rest(self.mesh.vertices))
+        self.solver.forget()
         self._time = 0.0
         self._steps = 0
 
@@ -424,13 +429,20 @@ class ClothSimulator:
             self._self.begin(self.state.x, self.state.v)
         self._features.start()
         boxes = self._features.present(self.control)   # their calls: _step_in_calls
-        if cap == 0 and not len(self._handles) and not boxes and not self._self_on:
-            done = self.solver.step(n, self.state, self.control, self.coefficients,
-                                    self._dt, self._vmax ** 2)
-        else:
-            done = self._step_in_calls(n, cap)
+        try:
+            if cap == 0 and not len(self._handles) and not boxes and not self._self_on:
+                done = self.solver.step(n, self.state, self.control, self.coefficients,
+                                        self._dt, self._vmax ** 2)
+            else:
+                done = self._step_in_calls(n, cap)
+        except BaseException:
+            # any other failure (or a Ctrl-C) inside a step: the state as before the call
+            self.state.assign(backup)
+            self.solver.forget()
+            raise
         if done < n:
             self.state.assign(backup)
+            self.solver.forget()
             crit = self.critical_dt() if self._solver_kind == 'explicit' else math.inf
             if self._dt > crit:
                 hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
@@ -744,8 +756,9 @@ class ClothSimulator:
     def energy(self) -> Dict[str, float]:
         """Energies [J] of the current state and the running balance terms.
 
-        ``kinetic`` uses the velocity synchronised with the positions (the leapfrog
-        half-step correction v + dt/2 a), ``stretching``, ``bending``, ``coupling`` are the
+        ``kinetic`` uses the velocity synchronised with the positions (for the explicit
+        solver the leapfrog half-step correction v + dt/2 a; the implicit solver's
+        velocity is at the positions' time), ``stretching``, ``bending``, ``coupling`` are the
         discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
         -sum m g . x, ``total`` = kinetic + elastic + gravity. ``external_work`` (nodal
         forces and force field) and ``dissipated`` (damping) accumulate since the last

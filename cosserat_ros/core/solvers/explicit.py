@@ -174,6 +174,11 @@ class ExplicitSolver:
         return run(nsteps, state, control, coeff, m.faces, m.vertex_faces, m.vertices,
                    m.jets.tr_ptr, self.lanes, self.plan, self.work, dt, vmax2)
 
+    def forget(self) -> None:
+        """Nothing to drop when the state is set from outside: the explicit update
+        carries nothing from one step to the next but the state (the implicit solver's
+        predictor: :meth:`.implicit.ImplicitSolver.forget`)."""
+
     def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
         """The internal force at positions x (n,3) into out (n,3) [N]."""
         m = self.model

@@ -30,8 +30,8 @@ Newton's method:
   whole Hessian (its positive part) + the bending's and coupling's per-vertex 3x3 blocks
   (``hessian_blocks``, positive semi-definite; where the bending dominates the inertia
   at the mesh's scale, its whole plate operator instead of its blocks), kept across
-  iterations and steps until CG needs more than twice what it took with it fresh
-  (``ImplicitSolver._preconditioner``);
+  iterations and steps until CG needs more than twice what it took with it fresh and
+  more than ``refresh`` (8) iterations (``ImplicitSolver._preconditioner``);
   stopped at the inexact-Newton forcing tolerance ``|r + A+ p| <= eta |r|`` (Eisenstat &
   Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A+ q <= 0`` (negative
   curvature, which the bending can still have: Steihaug truncation, Nocedal & Wright
@@ -157,7 +157,9 @@ class SolveReport:
     #: whether the step was the linearised backward Euler (``iterations`` 1, module
     #: docstring): unconverged by design, not a failure
     linearized: bool = False
-    #: steps whose solve stopped at the iteration limit, since construction
+    #: steps whose solve ended unconverged (at the iteration limit, or a line search that
+    #: could not lower Phi), since construction; the linearised solver's steps, which
+    #: are not asked to converge, are not counted
     unconverged_steps: int = 0
 
 
@@ -199,6 +201,7 @@ class ImplicitSolver:
         self._plate_diag = None
         self._pinv = None
         self._pinv_key = None
+        self._pinv_of = (None, None)
         #: CG iterations above which the factored preconditioner is rebuilt, when they
         #: are also more than twice what it took when fresh (``_fresh_cg``). It is
         #: rebuilt where the next solves run: at the next Newton iterate of the step;
@@ -217,7 +220,15 @@ class ImplicitSolver:
         self._contacts = ObstacleConstraints(n)
         self._scratch = model_scratch(model)
         #: the last step's acceleration (v' - v) / dt, for the next step's predictor
+        #: (:meth:`forget` clears it)
         self._accel = np.zeros((n, 3))
+
+    def forget(self) -> None:
+        """Drop what the solver carries from the last step to the next, the predictor's
+        acceleration: the state was set from outside (a reset, ``set_positions``,
+        ``set_velocities``, a divergence's restore), so the next step starts as from a
+        fresh simulator (the linearised solver's step depends on its start)."""
+        self._accel[:] = 0.0
 
     @property
     def linearized(self) -> bool:
@@ -371,6 +382,9 @@ class ImplicitSolver:
         drag = drag_blocks(m, xn, vn, control.air) if control.air[0] != 0.0 else None
         drag_dt = None if drag is None else drag / dt
         y = xn + dt * vn + dt ** 2 * (fa / mass + g)
+        rep = self.last
+        rep.iterations = rep.cg_iterations = rep.factorizations = rep.negative_curvature = 0
+        rep.residual, rep.converged = float('nan'), False    # until a solve ends
         # the start: where the vertices would coast to (x + dt v), not y: y carries the
         # whole applied force as if nothing resisted it, and a 10 N pull on one light
         # vertex puts y metres away and the first residuals at 1e11 N
@@ -380,8 +394,6 @@ class ImplicitSolver:
             con = self._contacts
             con.begin(xn, vn, y, free, control, dt)
         th = control.contact_params[0]
-        rep = self.last
-        rep.iterations = rep.cg_iterations = rep.factorizations = rep.negative_curvature = 0
         f = self._f
         # the forces on each vertex other than the elastic one, for the round-off floor
         outer = np.linalg.norm(fa, axis=1) + mass[:, 0] * np.linalg.norm(g)
@@ -400,17 +412,24 @@ class ImplicitSolver:
                              dt, out, scale, guess)
             if r is None:
                 return False
-            if con is None or not con.update(xn, xk, r, free, control, dt,
-                                              adds_only=round_ >= ROUNDS - 1):
+            # the last solve's set is final: a vertex it took inside a layer stays free, for
+            # the explicit contact's correction after the solve (``contact_list``)
+            if (con is None or round_ == ROUNDS + ADDS - 1
+                    or not con.update(xn, xk, r, free, control, dt,
+                                      adds_only=round_ >= ROUNDS - 1)):
                 break
-        # the end of the step: velocities, the pins' reactions, the balance
+        if not rep.converged and not rep.linearized:
+            rep.unconverged_steps += 1
+        # the end of the step: velocities, the pins' reactions, the balance (``f`` is the
+        # internal force at xk, where the last solve left it; the pinned vertices are at
+        # x + dt u since the start)
         vk = (xk - xn) / dt
         vk[pinned] = u[pinned]
-        self._accel[:] = (vk - vn) / dt
-        xk[pinned] = (xn + dt * u)[pinned]
-        if np.any(np.sum(vk * vk, axis=1) > vmax2):
+        # a speed the elastic waves cannot carry, on the free vertices (a pin or a
+        # handle moves as prescribed, as in the explicit update)
+        if np.any(np.sum(vk[free] * vk[free], axis=1) > vmax2):
             return False
-        self.internal_forces(xk, coeff, f)
+        self._accel[:] = (vk - vn) / dt
         if drag is not None:                     # the applied force the step used
             fa = fa - np.einsum('nij,nj->ni', drag, vk - vn)
         # the force the step's own forces leave unbalanced: a pin's reaction, an
@@ -510,19 +529,25 @@ class ImplicitSolver:
             return None                          # a non-finite force at the start
         r0 = _norm(r)
         it = 0
-        key = (dt, coeff.zeta, coeff.xi, coeff.phi, id(coeff.mass), id(coeff.damp),
-               held.tobytes(), drag is None)
+        key = (dt, coeff.zeta, coeff.xi, coeff.phi, held.tobytes(), drag is None)
+
+        def current():
+            # the mass and damping by identity, held: a material change makes new arrays
+            # (an id alone can be reused by the next allocation)
+            return (self._pinv_key == key and self._pinv_of[0] is coeff.mass
+                    and self._pinv_of[1] is coeff.damp)
 
         def factor():
             self._pinv = self._preconditioner(coeff, xk, diag, drag_dt, held, dt)
             self._pinv_key = key
+            self._pinv_of = (coeff.mass, coeff.damp)
             self._fresh_cg = None
             self._stale = False
             rep.factorizations += 1
         while unmet(res) and rmax > floor and it < self.iterations:
             if not np.isfinite(res):
                 return None
-            if self._pinv is None or self._pinv_key != key or self._stale:
+            if self._pinv is None or not current() or self._stale:
                 factor()
             pinv = self._pinv
             if con is not None and con.active:
@@ -571,15 +596,15 @@ class ImplicitSolver:
             r = rt if rt is not None else residual(xk, f)
             rmax, res = measure(r)
             it += 1
-        if self._stale and not self.linearized and self._pinv_key == key:
+        if self._stale and not self.linearized and current():
             factor()                             # at the step's solution (``refresh``)
         rep.iterations += it
         rep.residual = res
         rep.converged = bool(res <= self.tolerance or rmax <= floor)
         rep.linearized = self.linearized
-        if not rep.converged:
-            rep.unconverged_steps += 1
-        if not np.all(np.isfinite(xk)):
+        # a non-finite force or position where the solve ended (a NaN residual meets
+        # neither test of the loop, and the line search asks Phi only to be finite)
+        if not (np.isfinite(res) and np.all(np.isfinite(xk))):
             return None
         return raw(xk, f)
 

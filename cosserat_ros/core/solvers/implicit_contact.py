@@ -52,7 +52,9 @@ and the step is solved again from where it ended (the friction of a sliding vert
 lagged: its normal force and direction from the last solve). A vertex changes between
 stick and slide once per step at most; after :data:`ROUNDS` solves only vertices a solve
 took inside a layer join the set (at most :data:`ADDS` more solves), so that none is
-left to a correction after the solve, which would move it without its neighbours. A
+left to a correction after the solve, which would move it without its neighbours (a
+vertex the last of them takes inside a layer is: it stays free, and the explicit
+contact's correction answers it, :func:`..update.contact_list`). A
 vertex inside the layer at the step's start is held where it is, not pushed out by the
 solve: :func:`..contact.push_out` puts it back on the layer afterwards, a position
 change without velocity as in the explicit update. Each vertex takes the obstacle whose linearised gap is the most
@@ -229,8 +231,12 @@ class ObstacleConstraints:
         fn = np.sum(r * nrm, 1)
         con = self.mode != FREE
         self.fn[con] = fn[con]
-        release = con & ~(fn > 0.0) & (not adds_only)
-        changed = bool(release.any())
+        # released in every round, adds-only included: a sliding vertex the obstacle
+        # pulls would otherwise keep a friction that pushes it along its slip, and a
+        # sticking one a negative contact force; an adds-only round does not solve
+        # again for it (it leaves the layer in the next step)
+        release = con & ~(fn > 0.0)
+        changed = bool(release.any()) and not adds_only
         self.mode[release] = FREE
         self.friction[release] = 0.0
         st = np.flatnonzero((self.mode == STICK) & ~self.switched & (not adds_only))
