@@ -362,6 +362,9 @@ def test_api_validation():
     for kw, match in ((dict(zeta=-1.0), 'must not be negative'),
                       (dict(xi=float('inf')), 'must be finite'),
                       (dict(density=0.0), 'density must be positive'),
+                      # rates no step resolves (their squares would overflow a float)
+                      (dict(density=1e-160), 'wave speed'),
+                      (dict(density=1e-12, damping=1e6, zeta=1e-9), 'damping rate'),
                       (dict(phi=1.0), 'indefinite'),
                       (dict(damping='a lot'), 'must be a number')):
         args = dict(zeta=10.0, xi=1e-3, phi=0.0, density=0.2, damping=0.0)

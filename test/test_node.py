@@ -142,11 +142,69 @@ def test_parameters_validated_and_applied(h):
             ('dt', 0.5, 'critical step'),
             ('gravity', [0.0, 1.0], '3 finite numbers'),
             ('coloring', 'rainbow', 'coloring must be one of'),
+            # a density no step resolves: refused with the reason, not an overflow that
+            # ends the node (with damping 0.1: a damping rate of 1e159 1/s)
+            ('material.density', 1e-160, 'wave speed'),
+            ('use_sim_time', True, 'source of /clock'),   # its timer would wait for itself
+            ('solver.iterations', 5, 'implicit solver'),  # this node runs the explicit one
             ('mesh.nx', 20, '')):                          # read-only
         res = h.node.set_parameters([Parameter(name, value=value)])[0]
         assert not res.successful, name
         assert why in res.reason
     assert h.node.sim.material.zeta == 80.0
+    h.spin(0.2)
+    assert h.node.diverged is None and h.node.sim.material.density == 0.2
+
+
+def test_lowered_limits_apply_to_what_stands(h):
+    """A command is checked against max_force / max_acceleration / max_wind when it
+    arrives; lowering a limit drops what stands above it, and max_wind cannot go below
+    the standing air.wind."""
+    h.send('vertex', rows([3, 0.0, 0.0, 8.0]))
+    h.send('field', field([0.0, 0.0, 5.0]))
+    assert h.node.sim.vertex_forces[3, 2] == 8.0
+    assert all(r.successful for r in h.node.set_parameters(
+        [Parameter('max_force', value=5.0), Parameter('max_acceleration', value=2.0)]))
+    assert not h.node.sim.vertex_forces.any()
+    assert not np.any(h.node.sim.force_field)
+    ok = h.node.set_parameters([Parameter('air.wind', value=[3.0, 0.0, 0.0])])[0]
+    assert ok.successful, ok.reason
+    res = h.node.set_parameters([Parameter('max_wind', value=2.0)])[0]
+    assert not res.successful and 'air.wind' in res.reason
+
+
+def test_an_error_inside_a_step_pauses_the_node_and_keeps_it_up(h, monkeypatch):
+    """Any exception from the step (here a solver that raises after moving the cloth) is
+    reported like a divergence: the node pauses, the state is the one before the step,
+    and ~/reset recovers."""
+    sim = h.node.sim
+    real = sim.solver.step
+
+    def broken(nsteps, state, *args):
+        state.x[:] += 1.0
+        raise RuntimeError('a broken kernel')
+    h.pause(True)
+    monkeypatch.setattr(sim.solver, 'step', broken)
+    before = sim.positions
+    h.pause(False)
+    assert h.spin_until(lambda: h.node.diverged is not None, 5)
+    assert 'RuntimeError: a broken kernel' in h.node.diverged and h.node.paused
+    assert np.array_equal(sim.positions, before)
+    monkeypatch.setattr(sim.solver, 'step', real)
+    assert h.node.reset()[0]
+    h.spin(0.3)
+    assert h.node.diverged is None and _steps(h) > 0
+
+
+def test_use_sim_time_is_refused_at_start_up():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        with pytest.raises(ConfigError, match='source of /clock'):
+            ClothNode(context=ctx, parameter_overrides=[
+                Parameter(k, value=v) for k, v in dict(OVERRIDES, use_sim_time=True).items()])
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def _steps(h):
@@ -664,8 +722,53 @@ def test_obstacles_from_markers_are_added_moved_refused_and_deleted():
         assert h.spin_until(lambda: len(h.node.sim.obstacles) == 1, 5)
         pub.publish(_markers(_marker(action=Marker.DELETEALL)))
         assert h.spin_until(lambda: len(h.node.sim.obstacles) == 0, 5)
+        # the viewers are told: the last array is the DELETEALL alone
+        assert h.spin_until(lambda: len(shown[-1].markers) == 1, 5)
+        assert shown[-1].markers[0].action == Marker.DELETEALL
         h.spin(0.2)
         assert h.node.diverged is None and np.all(np.isfinite(h.node.sim.positions))
+    finally:
+        h.close()
+
+
+def test_marker_obstacles_stop_at_a_reset_and_mesh_markers_are_capped(monkeypatch):
+    """A marker obstacle streamed in motion stops where it is at ~/reset (its velocity
+    came from poses before it); at most MAX_MESH_MARKERS mesh obstacles come from
+    markers at once (each holds a distance field), the next is refused whole."""
+    import trimesh
+    from cosserat_ros.ros import commands
+    monkeypatch.setattr(node_module, 'MESH_BUILD_PERIOD', 0.0)   # no 2 s wait between
+    h = Harness()
+    pub = h.peer.create_publisher(MarkerArray, '/cloth_node/obstacles', 10)
+    try:
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+        pub.publish(_markers(_marker(pos=(0.0, 0.0, -0.5))))
+        assert h.spin_until(lambda: len(h.node.sim.obstacles) == 1, 5)
+        h.spin(0.1)
+        pub.publish(_markers(_marker(pos=(0.05, 0.0, -0.5))))
+        oid = next(iter(h.node.sim.obstacles))
+        assert h.spin_until(
+            lambda: h.node.sim.obstacles[oid]['linear_velocity'][0] > 0, 5)
+        assert h.node.reset()[0]
+        d = h.node.sim.obstacles[oid]
+        assert not any(d['linear_velocity']) and not any(d['angular_velocity'])
+        h.spin(0.2)
+        assert h.node.sim.obstacles[oid]['position'] == d['position']
+        box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+        pts = [Point(x=float(a), y=float(b), z=float(c))
+               for a, b, c in box.vertices[box.faces.reshape(-1)]]
+        before = h.node.rejected['obstacles']
+        for k in range(commands.MAX_MESH_MARKERS + 1):
+            m = _marker('mesh', k, Marker.TRIANGLE_LIST, scale=(1, 1, 1),
+                        pos=(0.0, 0.0, -2.0 - k))
+            m.points = pts
+            pub.publish(_markers(m))
+            assert h.spin_until(lambda: len(h.node.sim.obstacles) == k + 2
+                                or h.node.rejected['obstacles'] > before, 120)
+        meshes = [d for d in h.node.sim.obstacles.values() if d['shape'] == 'mesh']
+        assert len(meshes) == commands.MAX_MESH_MARKERS
+        assert h.node.rejected['obstacles'] == before + 1
+        assert h.node.diverged is None
     finally:
         h.close()
 
@@ -765,6 +868,30 @@ def test_handles_grasp_move_report_and_release_through_ros():
             assert h.spin_until(lambda: h.node.rejected['handles'] > before, 5)
             before = h.node.rejected['handles']
         assert h.node.sim.handles[hid]['position'][0] < corner[0] + 1.0   # no teleport
+        # many short hops while paused (sim time stands still) do not add up to a jump:
+        # each is measured from where the handle is, so all but the first few are refused
+        h.pause(True)
+        at = np.array(h.node.sim.handles[hid]['position'])
+        period = h.node.period
+        hop = 0.5 * h.node._max_handle_speed * period           # half the allowed speed
+        for k in range(1, 21):
+            target.publish(_pose(at + [hop * k, 0.0, 0.0]))
+            h.spin(0.02)                             # (within the queue's depth)
+        assert h.spin_until(lambda: h.node.rejected['handles'] >= before + 18, 5)
+        h.pause(False)
+        h.spin(0.3)
+        moved = np.linalg.norm(np.array(h.node.sim.handles[hid]['position']) - at)
+        assert moved <= 2 * hop * (1 + 1e-6), moved
+        # nor does a turn: half a turn in one tick (paused, right after a target where
+        # the handle is) at the grasp radius, 0.25 m in 1/30 s, is refused
+        h.pause(True)
+        p_now = np.array(h.node.sim.handles[hid]['position'])
+        target.publish(_pose(p_now))
+        h.spin(0.1)
+        before = h.node.rejected['handles']
+        target.publish(_pose(p_now, (0.0, 0.0, 1.0, 0.0)))
+        assert h.spin_until(lambda: h.node.rejected['handles'] > before, 5)
+        h.pause(False)
         res = call(False)
         assert res.success and not h.node.sim.handles
         h.spin(0.2)

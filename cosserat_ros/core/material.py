@@ -55,6 +55,12 @@ def finite_non_negative(val, name: str) -> float:
     return float(val)
 
 
+#: the largest membrane wave speed sqrt(6 zeta / density) a Material accepts [m/s]
+MAX_WAVE_SPEED = 1e6
+#: the largest damping rate damping / density a Material accepts [1/s]
+MAX_DAMPING_RATE = 1e9
+
+
 @dataclass(frozen=True)
 class Material:
     """Material constants in SI units (see the module table). Validated on construction.
@@ -87,6 +93,20 @@ class Material:
             raise ValueError('material.xi (bending) must be positive, got 0')
         if self.density <= 0:
             raise ValueError('material.density must be positive, got 0')
+        # the rates a step squares (the stability limit, the divergence check): a density
+        # so small against the stiffness or the damping that they leave every material
+        # (steel's membrane wave speed is ~5.4 km/s) has no motion to resolve, and its
+        # squares overflow a float
+        c = math.sqrt(6.0 * self.zeta / self.density)
+        if not c <= MAX_WAVE_SPEED:
+            raise ValueError(f'material.density = {self.density:g} kg/m^2 with zeta = '
+                             f'{self.zeta:g} N/m gives a membrane wave speed of {c:.3g} m/s, '
+                             f'above {MAX_WAVE_SPEED:g} m/s: no time step resolves it')
+        rate = self.damping / self.density
+        if not rate <= MAX_DAMPING_RATE:
+            raise ValueError(f'material.density = {self.density:g} kg/m^2 with damping = '
+                             f'{self.damping:g} kg/(m^2 s) gives a damping rate of '
+                             f'{rate:.3g} 1/s, above {MAX_DAMPING_RATE:g} 1/s')
         if self.phi ** 2 >= 4.0 * self.zeta * self.xi:
             raise ValueError(f'material.phi = {self.phi:g} N makes the energy indefinite: '
                              f'it needs phi^2 < 4 zeta xi = {4 * self.zeta * self.xi:g} N^2')

@@ -286,7 +286,7 @@ class ObstacleSet:
         v = _vec(linear_velocity, 'linear_velocity')
         w = _vec(angular_velocity, 'angular_velocity')
         o.position, o.orientation, o.velocity, o.omega = p, q, v, w
-        self._rebuild()
+        self._rebuild(fields=False)
 
     def describe(self) -> Dict[int, dict]:
         return {oid: o.describe() for oid, o in self._items.items()}
@@ -295,7 +295,12 @@ class ObstacleSet:
         return self._item(oid).mesh
 
     # ------------------------------------------------------------------ the table
-    def _rebuild(self) -> None:
+    def _rebuild(self, fields: bool = True) -> None:
+        """The table the step reads, one row per obstacle; with ``fields`` also the mesh
+        obstacles' distance grids and sharp features, concatenated. A pose change
+        (``fields`` False) keeps those: they are in each obstacle's own frame, and the
+        set and its order are unchanged, so a moving mesh does not copy every mesh's
+        field again (up to 16 MB each)."""
         rows, metas, datas, ids = [], [], [], []
         offset = 0
         for oid, o in self._items.items():
@@ -329,6 +334,9 @@ class ObstacleSet:
             rows.append(row)
             ids.append(oid)
         self.table = np.array(rows).reshape(-1, C.WIDTH)
+        self.ids = ids
+        if not fields:
+            return
         self.meta = np.array(metas, dtype=np.float64).reshape(-1, 8)
         # the mesh obstacles' sharp corners and edges, per row (features.Shapes)
         fmeta = np.zeros((len(rows), FM_WIDTH))
@@ -346,7 +354,6 @@ class ObstacleSet:
                 ne += len(e)
         self.shapes = (fmeta, np.concatenate(corners), np.concatenate(edges))
         self.data = np.concatenate(datas) if datas else np.zeros(0)
-        self.ids = ids
 
     # ------------------------------------------------------------------ motion
     def moving(self) -> bool:
@@ -388,7 +395,7 @@ class ObstacleSet:
         for oid, (p, q) in poses.items():
             if oid in self._items:
                 self._items[oid].position, self._items[oid].orientation = p, q
-        self._rebuild()
+        self._rebuild(fields=False)
 
     def advance(self, t: float) -> None:
         """Move every obstacle by its velocities over ``t`` seconds."""
@@ -403,7 +410,7 @@ class ObstacleSet:
                 dq = np.array([*(axis * math.sin(half)), math.cos(half)])
                 o.orientation = _qmul(dq, o.orientation)
                 o.orientation /= np.linalg.norm(o.orientation)
-        self._rebuild()
+        self._rebuild(fields=False)
 
     # ------------------------------------------------------------------ forces
     def forces(self, x: np.ndarray, contact: np.ndarray,

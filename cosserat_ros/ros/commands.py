@@ -14,7 +14,7 @@ from ..core.surface_query import closest_points
 
 __all__ = ['CommandError', 'force_rows', 'vertex_forces', 'point_forces', 'force_field', 'wind',
            'check_totals', 'obstacle_markers', 'obstacle_name', 'MAX_MARKERS',
-           'MAX_MESH_POINTS', 'MAX_ROWS', 'MAX_FORCE_BYTES', 'handle_target']
+           'MAX_MESH_POINTS', 'MAX_MESH_MARKERS', 'MAX_ROWS', 'MAX_FORCE_BYTES', 'handle_target']
 
 #: rows per ``~/vertex_forces`` or ``~/point_forces`` message
 MAX_ROWS = 4096
@@ -143,6 +143,9 @@ def wind(msg, frame_id: str, max_wind: float) -> np.ndarray:
 #: limits of ``~/obstacles``: markers per message, points of one TRIANGLE_LIST
 MAX_MARKERS = 64
 MAX_MESH_POINTS = 30_000
+#: the most mesh obstacles made from markers at once: each holds a distance field (up to
+#: 16 MB) and goes out on ~/obstacle_markers each second with its triangles
+MAX_MESH_MARKERS = 4
 
 # visualization_msgs/Marker constants (kept here so the parser needs no ROS import)
 _CUBE, _SPHERE, _CYLINDER, _TRIANGLE_LIST = 1, 2, 3, 11

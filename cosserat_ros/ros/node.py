@@ -45,6 +45,7 @@ import math
 import os
 import sys
 import time
+import traceback
 from typing import Dict, List, Optional, Tuple
 
 import numba
@@ -128,6 +129,12 @@ def _angular_velocity(q0, q1, dt: float) -> np.ndarray:
     return d[:3] / s * angle / dt
 
 
+#: why the node refuses ``use_sim_time`` true: its timer would then wait for the /clock
+#: that only its own ticks publish, and the cloth would never move again
+SIM_TIME_REASON = ('use_sim_time must stay false: this node is the source of /clock (its '
+                   'ticks run on wall time and publish it); set use_sim_time on the nodes '
+                   'that consume it')
+
 @dataclass
 class _Force:
     indices: np.ndarray
@@ -144,6 +151,8 @@ class ClothNode(Node):
         p = self._values()
         # everything that needs no compiled kernel is checked first: a bad file fails fast
         self._check_parameter_names(p, sys.argv if argv is None else argv)
+        if self.get_parameter('use_sim_time').value:
+            raise ConfigError(SIM_TIME_REASON)
         self.observe_only = bool(p['observe_only'])
         self.mesh = self._build_mesh(p)
         material = self._initial_material(p)
@@ -169,6 +178,12 @@ class ClothNode(Node):
         if self.implicit:
             self.sim.solver_iterations = p['solver.iterations']
             self.sim.solver_tolerance = p['solver.tolerance']
+        else:
+            unused = [k for k in ('solver.iterations', 'solver.tolerance')
+                      if k in self._parameter_overrides]
+            if unused:
+                self.get_logger().warning(f'{", ".join(unused)}: controls of the implicit '
+                                          'solver, unused with solver: explicit')
         # compile (or load from cache) every kernel of the step and of the energy report
         # before any topic exists: a recorder that starts when the topics appear must not
         # wait through a first tick that compiles
@@ -253,6 +268,7 @@ class ClothNode(Node):
         self.obstacle_pub = self.create_publisher(MarkerArray, '~/obstacle_markers',
                                                   reliable)
         self._last_obstacle_pub = -1.0
+        self._marker_points: Dict[int, list] = {}
         self._last_field_build = -math.inf
         for oid in self.sim.obstacles:
             self._add_wrench_pub(oid)
@@ -423,7 +439,12 @@ class ClothNode(Node):
 
     def on_handle_target(self, name: str, msg: PoseStamped):
         """A pose for handle ``name``: moves it there if it holds the cloth (reached over
-        the sim time since the previous target, at least one tick), else places it."""
+        the sim time since the previous target, at least one tick), else places it.
+
+        A held handle's speed is measured from where it is now (not from the last target:
+        many targets in one tick, or while paused, would each be one short hop and add up
+        to a jump), its turn counted at the grasp radius: ``(|p - p_now| + theta r) /
+        duration`` must not exceed ``handles.max_speed``."""
         h = self._handles[name]
         try:
             p, q = commands.handle_target(msg, self.frame_id)
@@ -431,10 +452,16 @@ class ClothNode(Node):
             duration = self.period
             if h['target'] is not None:
                 duration = min(max(now - h['received'], self.period), 1.0)
-                speed = float(np.linalg.norm(p - h['target'][0])) / duration
-                if h['id'] is not None and speed > self._max_handle_speed:
+            if h['id'] is not None and h['id'] in self.sim.handles:
+                d = self.sim.handles[h['id']]
+                q0 = np.asarray(d['orientation'])
+                theta = 2.0 * math.acos(min(1.0, abs(float(np.dot(q0, q)))))
+                speed = (float(np.linalg.norm(p - np.asarray(d['position'])))
+                         + theta * h['radius']) / duration
+                if speed > self._max_handle_speed:
                     raise commands.CommandError(
-                        f'target {speed:.3g} m/s from the last one, above handles.max_speed '
+                        f'target {speed:.3g} m/s from where the handle is (its turn at the '
+                        f'grasp radius included), above handles.max_speed '
                         f'{self._max_handle_speed:.3g}')
         except commands.CommandError as exc:
             self._reject('handles', f'{name}: {exc}')
@@ -524,6 +551,11 @@ class ClothNode(Node):
                 self._apply_obstacle_op(op, seen, now)
             if sum(1 for oid in seen if oid in self.sim.obstacles) > commands.MAX_MARKERS:
                 raise ValueError(f'more than {commands.MAX_MARKERS} obstacles from markers')
+            meshes = sum(1 for oid in seen if oid in self.sim.obstacles
+                         and self.sim.obstacles[oid]['shape'] == 'mesh')
+            if meshes > commands.MAX_MESH_MARKERS:
+                raise ValueError(f'more than {commands.MAX_MESH_MARKERS} mesh obstacles from '
+                                 'markers (each holds a distance field)')
         except ValueError as exc:
             self.sim.restore_obstacles(snap)
             self._reject('obstacles', str(exc))
@@ -615,12 +647,21 @@ class ClothNode(Node):
             else:
                 m.type = Marker.TRIANGLE_LIST
                 m.scale.x = m.scale.y = m.scale.z = 1.0
-                verts, faces = self.sim.obstacle_mesh(oid)
-                from geometry_msgs.msg import Point
-                m.points = [Point(x=float(a), y=float(b), z=float(c))
-                            for a, b, c in verts[faces.reshape(-1)]]
+                m.points = self._mesh_points(oid)
             arr.markers.append(m)
+        for oid in set(self._marker_points) - set(self.sim.obstacles):
+            del self._marker_points[oid]
         self.obstacle_pub.publish(arr)
+
+    def _mesh_points(self, oid: int) -> list:
+        """A mesh obstacle's triangles as the points of a TRIANGLE_LIST, in its own frame;
+        built once per obstacle (an id's mesh never changes: a new shape is a new id)."""
+        if oid not in self._marker_points:
+            from geometry_msgs.msg import Point
+            verts, faces = self.sim.obstacle_mesh(oid)
+            self._marker_points[oid] = [Point(x=float(a), y=float(b), z=float(c))
+                                        for a, b, c in verts[faces.reshape(-1)]]
+        return self._marker_points[oid]
 
     def publish_contact(self, stamp: int):
         sec, nsec = divmod(stamp, 1_000_000_000)
@@ -727,6 +768,31 @@ class ClothNode(Node):
             raise ConfigError(str(exc)) from None
         return air if enabled else None
 
+    def _enforce_limits(self):
+        """A lowered ``max_force``, ``max_acceleration`` or ``max_wind`` also bounds what
+        stands (a command is checked when it arrives, and with ``force_timeout`` 0 it
+        stands until replaced): the commanded forces, the force field or the streamed
+        wind above it are dropped, and the log says so."""
+        parts = [f for f in self._forces.values() if f is not None]
+        if parts:
+            try:
+                commands.check_totals(np.concatenate([f.indices for f in parts]),
+                                      np.concatenate([f.forces for f in parts]),
+                                      self.mesh.n_vertices, self._max_force)
+            except commands.CommandError as exc:
+                self._forces = {key: None for key in self._forces}
+                self._push_forces()
+                self.get_logger().warning(f'commanded forces dropped: {exc}')
+        if self._field is not None and float(np.linalg.norm(self._field[0])) > self._max_acc:
+            self._field = None
+            self.sim.force_field = (0.0, 0.0, 0.0)
+            self.get_logger().warning('force field dropped: above the new max_acceleration')
+        if self._wind is not None and float(np.linalg.norm(self._wind[0])) > self._max_wind:
+            self._wind = None
+            self.sim.wind = self._steady_wind
+            self.get_logger().warning('streamed wind dropped: above the new max_wind; back '
+                                      'to air.wind')
+
     def _push_forces(self):
         parts = [f for f in self._forces.values() if f is not None]
         if parts:
@@ -776,6 +842,16 @@ class ClothNode(Node):
         self.sim.reset()
         for h in self._handles.values():
             h['id'] = None
+        # the markers' obstacles stop where they are, their streams restart at t = 0
+        # (their velocity came from poses stamped before the reset, and their lapse
+        # after force_timeout compares sim times)
+        described = self.sim.obstacles
+        for oid, (_, p0, q0, key) in list(self._marker_seen.items()):
+            d = described.get(oid)
+            if d is not None:
+                self.sim.set_obstacle_pose(oid, d['position'], d['orientation'])
+                self._marker_seen[oid] = (0.0, np.array(d['position']),
+                                          np.array(d['orientation']), key)
         self.diverged = None
         self.paused = False
         self._retime(True)
@@ -804,6 +880,13 @@ class ClothNode(Node):
                         self._max_wind)
         for prm in params:
             name, val = prm.name, prm.value
+            if name == 'use_sim_time' and val:
+                return SetParametersResult(successful=False, reason=SIM_TIME_REASON)
+            if name in ('solver.iterations', 'solver.tolerance') and not self.implicit:
+                return SetParametersResult(
+                    successful=False, reason=f'{name} is a control of the implicit solver; '
+                                             'this node runs solver: explicit (chosen at '
+                                             'start-up)')
             if self.observe_only and name not in OBSERVER_RUNTIME:
                 return SetParametersResult(
                     successful=False, reason=f'observe_only: {name} cannot change (only '
@@ -851,20 +934,33 @@ class ClothNode(Node):
                 if not isinstance(val, float) or not (val >= 0 and math.isfinite(val)):
                     return SetParametersResult(successful=False,
                                                reason=f'{name} must be a non-negative float')
+        names = {prm.name for prm in params}
+        if ('max_wind' in names and 'air.wind' not in names and isinstance(max_wind, float)
+                and float(np.linalg.norm(self._steady_wind)) > max_wind):
+            return SetParametersResult(
+                successful=False, reason=f'max_wind {max_wind:g} m/s is below the standing '
+                                         f'air.wind ({np.linalg.norm(self._steady_wind):.3g} '
+                                         'm/s): lower air.wind first, or both together')
         try:
             material = Material(**mat)
             Air(**air)
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         if not self.implicit and (material != self.sim.material or dt != self.sim.dt):
-            crit = self.sim.critical_dt(material)
-            if dt > crit:
+            try:
+                crit = self.sim.critical_dt(material)
+            except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+                return SetParametersResult(
+                    successful=False, reason=f'no stable step found for this material '
+                                             f'({type(exc).__name__}: {exc})')
+            if not dt <= crit:                   # (a NaN limit refuses too)
                 return SetParametersResult(
                     successful=False, reason=f'dt = {dt:.3g} s would exceed the critical step '
                                              f'{crit:.3g} s of this mesh and material')
         return SetParametersResult(successful=True)
 
     def apply_parameters(self, params: List[Parameter]):
+        names = {prm.name for prm in params}
         mat = {k: getattr(self.sim.material, k) for k in MATERIAL_KEYS}
         changed_material = False
         changed_air = False
@@ -909,6 +1005,8 @@ class ClothNode(Node):
                 self.sim.self_friction = val
             elif name == 'handles.max_speed':
                 self._max_handle_speed = val
+        if names & {'max_force', 'max_acceleration', 'max_wind'}:
+            self._enforce_limits()
         if changed_material:
             self.sim.material = Material(**mat)
         if changed_air:
@@ -974,16 +1072,23 @@ class ClothNode(Node):
                 self.timer.reset()
 
     def _step(self, n: int) -> bool:
-        """n steps; on a divergence, pause and report, and return False."""
+        """n steps; on a divergence, pause and report, and return False. Any other error
+        of the step (the simulator restores its state from before the call) is reported
+        the same way, with its traceback in the log: the node stays up."""
         try:
             self.sim.step(n)
         except SimulationDiverged as exc:
-            self.diverged = str(exc)
-            self.paused = True
-            self._dirty = True
-            self.get_logger().error(f'{exc}; paused, call ~/reset to recover')
-            return False
-        return True
+            reason = str(exc)
+        except Exception as exc:                 # noqa: BLE001 (reported, not hidden)
+            reason = f'the step failed: {type(exc).__name__}: {exc}'
+            self.get_logger().error(traceback.format_exc())
+        else:
+            return True
+        self.diverged = reason
+        self.paused = True
+        self._dirty = True
+        self.get_logger().error(f'{reason}; paused, call ~/reset to recover')
+        return False
 
     def stamp_ns(self) -> int:
         return int(round(self.sim.time * 1e9))
@@ -1040,8 +1145,11 @@ class ClothNode(Node):
         if self._handles:
             self.publish_handles(stamp)
         mono = time.monotonic()
-        if self.sim.obstacles and (self._last_obstacle_pub < 0
-                                   or mono - self._last_obstacle_pub >= 1.0):
+        # ~1 Hz while there are obstacles, and once after every change: the last
+        # obstacle's removal too (the array is then its DELETEALL alone, which clears it
+        # from RViz / Foxglove)
+        if self._last_obstacle_pub < 0 or (self.sim.obstacles
+                                           and mono - self._last_obstacle_pub >= 1.0):
             self._last_obstacle_pub = mono
             self.publish_obstacles(stamp)
 

@@ -134,8 +134,9 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                   '/target and /wrench; handles.<name>.radius [m] and '
                                   "handles.<name>.break_force [N] (0 = none); [''] for none",
                                   True)),
-    'handles.max_speed': (2.0, _desc('Fastest accepted handle target motion [m/s]: a target '
-                                     'further from the last one is refused',
+    'handles.max_speed': (2.0, _desc('Fastest accepted motion of a held handle [m/s]: a '
+                                     'target further from where the handle is, its turn '
+                                     'counted at the grasp radius, is refused',
                                      fp=_fp(1e-3, 100.0))),
     'publish.points': (False, _desc('Publish ~/points: sensor_msgs/PointCloud2, one point '
                                     'per vertex, float32 x y z vx vy vz, every tick', True)),

@@ -16,7 +16,7 @@ relative velocity, with no wake, so in a steady wind a flag settles into a stead
 streaming out and drooping; the flapping of a real flag comes from the vortices it sheds.
 The gusts here stand in for them (and for a real wind's turbulence, as in Wilson et al.
 2014): the speed varies by +-30% and the direction swings by up to +-20 degrees across the
-flag, at 0.4-2.1 Hz.
+flag, at 0.5-2.1 Hz.
 """
 from __future__ import annotations
 
