@@ -288,8 +288,10 @@ def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_
     size, unread) and with the largest accepted ones (4,096 rows near the cloth, each
     bounded work: a grid closest-point query), ~/vertex_forces with 1,000 rows of 10 N on
     one vertex (each row within max_force, their sum not), and calls set_parameters with
-    a new material each time. The mesh keeps coming with no gap over 0.5 s, the cloth
-    does not diverge, and SIGINT in the middle of it ends the node within 1 s."""
+    a new material each time (every fifth call a value that must be refused: a density
+    whose rates overflow a float, use_sim_time true). The mesh keeps coming with no gap
+    over 0.5 s, the cloth does not diverge, and SIGINT in the middle of it ends the node
+    within 1 s."""
     from rcl_interfaces.srv import SetParameters
     node, ex = client
     params = tmp_path / 'flood.yaml'
@@ -314,7 +316,7 @@ def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_
         assert spin_until(ex, lambda: len(meshes) >= 3, 90.0), 'no mesh from cloth_node'
         assert setp.wait_for_service(timeout_sec=10.0)
         meshes.clear()
-        pending, k = [], 0
+        pending, bad, k = [], [], 0
         end = time.monotonic() + 4.0
         while time.monotonic() < end:
             points.publish(huge)
@@ -326,11 +328,20 @@ def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_
                 req = SetParameters.Request()
                 req.parameters = [Parameter('material.zeta',
                                             value=50.0 + 0.01 * k).to_parameter_msg()]
+                if k % 5 == 0:                         # and values that must be refused:
+                    # a density whose rates overflow a float; a clock the node would wait on
+                    req.parameters = [Parameter('material.density', value=1e-160)
+                                      if k % 10 else Parameter('use_sim_time', value=True)]
+                    req.parameters = [prm.to_parameter_msg() for prm in req.parameters]
+                    bad.append(setp.call_async(req))
+                    continue
                 pending.append(setp.call_async(req))
             spin_until(ex, lambda: False, 0.01)
         gap = _mesh_gaps(meshes)
         assert gap < 0.5, (gap, len(meshes))
         assert k > 20, k                              # the calls were answered meanwhile
+        assert spin_until(ex, lambda: all(f.done() for f in bad), 5.0)
+        assert bad and not any(r.successful for f in bad for r in f.result().results)
         diags.clear()
         assert spin_until(ex, lambda: len(diags) > 0, 5.0)
         vals = {kv.key: kv.value for kv in diags[-1].status[0].values}
