@@ -867,3 +867,31 @@ def test_a_vertex_the_last_contact_round_finds_is_answered_after_the_solve(monke
     # onto the layer in the step: 2 cm in 1/60 s, not 2 m/s on into the ground
     assert sim.velocities[:, 2].min() >= -0.02 / FRAME * (1 + 1e-9)
     assert sim.control.contact[:, 2].sum() > 0.5 * sim.n_vertices * 0.2 * (0.3 / 10) ** 2 * G
+
+
+def test_removing_an_obstacle_or_a_reset_leaves_no_force_on_another():
+    """The last step's contact rows name obstacles by table row: after a removal they are
+    cleared (a far sphere was reported carrying the cloth's weight that the removed floor
+    took), and a reset clears them and the pins' reactions (they belong to the old
+    state). A snapshot can be restored more than once; ids are ints, nothing else."""
+    sim = _sim(solver='implicit')
+    floor = sim.add_obstacle('plane', point=(0, 0, -0.05), normal=(0, 0, 1))
+    far = sim.add_obstacle('sphere', center=(5.0, 0.0, 0.0), radius=0.1)
+    sim.pin([0])
+    sim.step(60)
+    assert sim.contact_forces()[floor][0][2] < 0              # the cloth rests on it
+    sim.remove_obstacle(floor)
+    assert not np.any(sim.contact_forces()[far][0])
+    sim.step(2)
+    sim.reset()
+    assert not np.any(sim.contact_forces()[far][0])
+    assert not sim.control.reaction.any()
+    snap = sim.obstacle_snapshot()
+    for _ in range(2):
+        sim.set_obstacle_pose(far, (2.0, 0.0, 0.0))
+        sim.restore_obstacles(snap)
+        assert sim.obstacles[far]['position'] == (5.0, 0.0, 0.0)
+    for bad in (str(far), float(far), far + 0.5):       # not turned into obstacle far
+        with pytest.raises(ValueError, match='no obstacle'):
+            sim.remove_obstacle(bad)
+    assert far in sim.obstacles

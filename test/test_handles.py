@@ -164,3 +164,44 @@ def test_handle_api_refusals():
     sim.pin([3])
     sim.release(h)
     assert sorted(np.flatnonzero(sim.pinned)) == [3]      # a pin stays a pin
+    h1 = sim.grasp(vertices=[10])
+    for bad in (str(h1), float(h1), h1 + 0.5):          # not turned into handle h1
+        with pytest.raises(ValueError, match='no handle'):
+            sim.release(bad)
+    assert h1 in sim.handles
+    # a boolean mask or float indices as pin() takes them, not cast to 0 and 1
+    mask = np.zeros(sim.n_vertices, dtype=bool)
+    mask[[20, 21, 22]] = True
+    h2 = sim.grasp(vertices=mask)
+    assert sim.handles[h2]['vertices'].tolist() == [20, 21, 22]
+    with pytest.raises(ValueError, match='integers'):
+        sim.grasp(vertices=[1.7])
+
+
+def test_a_pin_a_handle_let_go_of_stays_where_it_is():
+    """A pinned vertex grabbed by a moving handle and let go keeps no velocity of the
+    handle's (README: such vertices stay pinned after the release)."""
+    sim = _sim(6, 0.2)
+    sim.pin([0])
+    h = sim.grasp(vertices=[0, 1])
+    p = np.array(sim.handles[h]['position'])
+    sim.move_handle(h, p + [0.0, 0.0, 0.1], duration=1.0)
+    sim.step(100)
+    sim.release(h)
+    at = sim.positions[0]
+    sim.step(500)
+    assert np.array_equal(sim.positions[0], at)
+    assert not sim.control.pin_velocity.any()
+
+
+def test_set_positions_moves_what_a_handle_holds_with_the_cloth():
+    """set_positions with a handle: the handle holds its vertices where they are set (its
+    offsets taken again), not pulled back to where they were in one step."""
+    sim = _sim(6, 0.2)
+    h = sim.grasp(vertices=[0, 1, 2])
+    p = np.array(sim.handles[h]['position'])
+    sim.set_positions(sim.positions + [0.0, 0.0, 0.3])
+    sim.move_handle(h, p + [0.01, 0.0, 0.0], duration=0.002)
+    sim.step(1)
+    assert np.abs(sim.velocities[[0, 1, 2], 2]).max() < 1.0
+    assert np.all(sim.positions[[0, 1, 2], 2] > 0.29)

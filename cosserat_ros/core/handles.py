@@ -80,11 +80,16 @@ class HandleSet:
     def __len__(self):
         return len(self._items)
 
+    def _key(self, hid) -> int:
+        """The id as the int it is stored under; ValueError for anything else (a float
+        or a string is not truncated into another handle's id)."""
+        if (isinstance(hid, (bool, np.bool_)) or not isinstance(hid, (int, np.integer))
+                or int(hid) not in self._items):
+            raise ValueError(f'no handle with id {hid!r}')
+        return int(hid)
+
     def _item(self, hid) -> _Handle:
-        try:
-            return self._items[int(hid)]
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f'no handle with id {hid!r}') from None
+        return self._items[self._key(hid)]
 
     def held(self) -> np.ndarray:
         """Indices of every vertex some handle holds."""
@@ -147,9 +152,8 @@ class HandleSet:
         h.motion = (t, max(duration, dt), p0.copy(), q0.copy(), p1, q1)
 
     def release(self, hid) -> np.ndarray:
-        h = self._item(hid)
-        del self._items[hid]
-        return h.idx
+        key = self._key(hid)
+        return self._items.pop(key).idx
 
     def describe(self, t) -> Dict[int, dict]:
         out = {}
@@ -184,6 +188,12 @@ class HandleSet:
             if turn > 0:
                 k = min(k, max(1, int(MAX_TURN / turn)))
         return max(1, k)
+
+    def rebase(self, x) -> None:
+        """Positions were set from outside: each handle holds its vertices where they
+        are now, their offsets ``R^T (x - p)`` taken again at its pose."""
+        for h in self._items.values():
+            h.offsets = (x[h.idx] - h.position) @ rotation_matrix(h.orientation)
 
     def prescribe(self, x, t, dt, k, pin_velocity) -> None:
         """The velocity of every held vertex over the next k steps from t: to its place on

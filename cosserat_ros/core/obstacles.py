@@ -254,23 +254,31 @@ class ObstacleSet:
         return ({oid: copy.copy(o) for oid, o in self._items.items()}, self._next)
 
     def restore_snapshot(self, snap) -> None:
-        self._items, self._next = dict(snap[0]), snap[1]
+        """Back to the snapshot (copied again: later changes do not reach it, so it can be
+        restored more than once)."""
+        import copy
+        self._items = {oid: copy.copy(o) for oid, o in snap[0].items()}
+        self._next = snap[1]
         self._rebuild()
 
     def remove(self, oid: int) -> None:
-        self._item(oid)
-        del self._items[oid]
+        del self._items[self._key(oid)]
         self._rebuild()
 
     def clear(self) -> None:
         self._items.clear()
         self._rebuild()
 
+    def _key(self, oid) -> int:
+        """The id as the int it is stored under; ValueError for anything else (a float
+        or a string is not truncated into another obstacle's id)."""
+        if (isinstance(oid, (bool, np.bool_)) or not isinstance(oid, (int, np.integer))
+                or int(oid) not in self._items):
+            raise ValueError(f'no obstacle with id {oid!r}')
+        return int(oid)
+
     def _item(self, oid) -> _Obstacle:
-        try:
-            return self._items[int(oid)]
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f'no obstacle with id {oid!r}') from None
+        return self._items[self._key(oid)]
 
     def find(self, name: str) -> Optional[int]:
         for oid, o in self._items.items():

@@ -167,8 +167,10 @@ class ClothSimulator:
         return self.state.x.copy()
 
     def set_positions(self, x) -> None:
-        """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp)."""
+        """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp), and a
+        handle holds its vertices where they are now (their offsets from it taken again)."""
         self.state.x[:] = self._checked_state(x, 'positions')
+        self._handles.rebase(self.state.x)      # held vertices: their new offsets
         self.solver.forget()
 
     @property
@@ -271,10 +273,12 @@ class ClothSimulator:
         self._sync_pins()
 
     def _sync_pins(self) -> None:
-        mask = self._user_pins.copy()
-        mask[self._handles.held()] = True
-        self.control.pinned[:] = mask
-        self.control.pin_velocity[~mask] = 0.0
+        held = np.zeros(self.n_vertices, dtype=bool)
+        held[self._handles.held()] = True
+        self.control.pinned[:] = self._user_pins | held
+        # a vertex no handle holds has no prescribed motion: a pin a handle let go of
+        # stays where it is
+        self.control.pin_velocity[~held] = 0.0
 
     def set_vertex_forces(self, indices, forces) -> None:
         """Replace the external nodal forces [N]: ``forces`` (k, 3) on vertices ``indices``
@@ -340,14 +344,21 @@ class ClothSimulator:
 
     def reset(self) -> None:
         """Back to the rest shape at rest: positions, velocities, time, step count and the
-        energy-balance integrals. Pins, forces, gravity and material are kept; grasp
-        handles let go (their offsets belong to the cloth before the reset)."""
+        energy-balance integrals; the last step's contact and reaction forces are
+        cleared. Pins, forces, gravity, material and obstacles (where they are, with
+        their velocities) are kept; grasp handles let go (their offsets belong to the
+        cloth before the reset)."""
         for hid in list(self._handles.describe(self._time)):
             self._handles.release(hid)
         self._sync_pins()
         self.control.pin_velocity[:] = 0.0
         self.state.assign(State.at_rest(self.mesh.vertices))
         self.solver.forget()
+        # what the last step wrote (contact rows, reactions) belongs to the old state
+        self.control.contact[:, :3] = 0.0
+        self.control.contact[:, 3] = -1.0
+        self.control.reaction[:] = 0.0
+        self._features.start()
         self._time = 0.0
         self._steps = 0
 
@@ -556,6 +567,8 @@ class ClothSimulator:
         and slips out above. ``orientation``: the handle frame's at the grasp (later
         poses turn the offsets from it). ``ValueError`` if nothing is within the radius,
         or a vertex is held by another handle. Physics: :mod:`cosserat_ros.core.handles`."""
+        if vertices is not None:
+            vertices = self._indices(vertices, 'vertices')
         hid = self._handles.grasp(self.state.x, point, radius, vertices, name, break_force,
                                   orientation)
         self._sync_pins()
@@ -605,7 +618,7 @@ class ClothSimulator:
         reason for a bad shape or geometry. Physics: :mod:`cosserat_ros.core.contact`.
         """
         oid = self._obstacles.add(shape, friction=friction, name=name, **geometry)
-        self._sync_obstacles()
+        self._sync_obstacles(changed_set=True)
         return oid
 
     def set_obstacle_pose(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
@@ -621,7 +634,7 @@ class ClothSimulator:
     def remove_obstacle(self, id) -> None:
         """Remove obstacle ``id`` (``ValueError`` if there is none)."""
         self._obstacles.remove(id)
-        self._sync_obstacles()
+        self._sync_obstacles(changed_set=True)
 
     @property
     def obstacles(self) -> Dict[int, dict]:
@@ -640,7 +653,7 @@ class ClothSimulator:
 
     def restore_obstacles(self, snapshot) -> None:
         self._obstacles.restore_snapshot(snapshot)
-        self._sync_obstacles()
+        self._sync_obstacles(changed_set=True)
 
     def obstacle_mesh(self, id):
         """(vertices, faces) of a mesh obstacle in its own frame, else None."""
@@ -724,13 +737,17 @@ class ClothSimulator:
                     'left_short': 0, 'closest_gap': math.inf, 'builds': 0}
         return self._self.report()
 
-    def _sync_obstacles(self) -> None:
+    def _sync_obstacles(self, changed_set: bool = False) -> None:
+        """The obstacles' table into the control; ``changed_set``: obstacles were added or
+        removed, so the last step's contact rows (which name obstacles by table row) and
+        the corners' forces name rows that may now be other obstacles: cleared."""
         o = self._obstacles
         self.control = self.control.with_obstacles(o.table, o.meta, o.data)
         self._features.set_shapes(*o.shapes)
-        if not len(o):
+        if changed_set or not len(o):
             self.control.contact[:, :3] = 0.0
             self.control.contact[:, 3] = -1.0
+            self._features.start()
 
     def internal_forces(self) -> np.ndarray:
         """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""
@@ -761,7 +778,8 @@ class ClothSimulator:
         velocity is at the positions' time), ``stretching``, ``bending``, ``coupling`` are the
         discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
         -sum m g . x, ``total`` = kinetic + elastic + gravity. ``external_work`` (nodal
-        forces and force field) and ``dissipated`` (damping) accumulate since the last
+        forces, force field, air, and what pins, handles and obstacles do) and
+        ``dissipated`` (damping, friction) accumulate since the last
         reset, so ``total - total(0) ~ external_work - dissipated``.
         """
         return self.energy_and_densities()[0]
