@@ -66,6 +66,8 @@ class Client:
                     self.channels.update({c['topic']: c for c in msg['channels']})
                 elif msg['op'] == 'advertiseServices':
                     self.services.update({s['name']: s for s in msg['services']})
+                elif msg['op'] == 'serviceCallFailure':
+                    self.responses.append((msg['callId'], {'failure': msg['message']}))
             elif frame[0] == 0x01:                              # message data
                 sub, log_time = struct.unpack_from('<IQ', frame, 1)
                 self.messages.append((sub, log_time, bytes(frame[13:])))
@@ -144,6 +146,13 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     assert c.pump(10, lambda: any(s == 7 for s, _, _ in c.messages))
     after = min(t for s, t, _ in c.messages if s == 7)
     assert after < before and after < 0.5e9                          # back near t = 0
+    # bad calls are refused, not read: "false" is not false (a true string), a request
+    # that is not a JSON object, one over MAX_REQUEST_BYTES (refused before parsing)
+    res = c.call('/cloth_node/pause', {'data': 'false'}, 3)
+    assert not res.get('success') and 'true or false' in res['message'], res
+    assert 'not a JSON object' in c.call('/cloth_node/pause', [1, 2], 4)['failure']
+    assert 'at most' in c.call('/cloth_node/reset', {'pad': 'x' * 5000}, 5)['failure']
+    assert c.call('/cloth_node/pause', {'data': False}, 6)['success']    # still served
     c._conn.__exit__(None, None, None)
     # the shipped layout shows what the server offers
     from ament_index_python.packages import get_package_share_directory

@@ -39,6 +39,14 @@ __all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS']
 
 #: [s] how long a service call waits for the node's next tick
 SERVICE_TIMEOUT = 2.0
+#: the largest service request read [bytes] (a reset or a pause is a few bytes; a larger
+#: one is refused before it is parsed, which would hold the interpreter's lock)
+MAX_REQUEST_BYTES = 4096
+#: the most calls waiting for the node's thread; more are refused as busy
+MAX_PENDING = 16
+#: messages the server keeps for a client that does not read (the SDK's default, 1024,
+#: is ~1 GB of scenes at 160 x 160)
+BACKLOG = 16
 #: the energy terms sent on /cloth_node/energy
 ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'external_work',
                'dissipated', 'total')
@@ -58,7 +66,8 @@ class LiveView:
                               "'cosserat_ros[viz]' (or pip install foxglove-sdk)") from None
         self._fg = foxglove
         self._handlers = handlers
-        self._requests: 'queue.Queue' = queue.Queue()
+        self._requests: 'queue.Queue' = queue.Queue(maxsize=MAX_PENDING)
+        self._meshes: dict = {}
         self.context = foxglove.Context()
         schema = foxglove.ServiceSchema(
             'std_srvs/Trigger',
@@ -74,7 +83,7 @@ class LiveView:
         self.server = foxglove.start_server(
             name=prefix.strip('/'), host=host, port=port, context=self.context,
             capabilities=[foxglove.Capability.Time, foxglove.Capability.Services],
-            supported_encodings=['json'], services=services)
+            supported_encodings=['json'], services=services, message_backlog_size=BACKLOG)
         self.scene = SceneUpdateChannel(f'{prefix}/scene', context=self.context)
         self.energy = foxglove.Channel(
             f'{prefix}/energy', message_encoding='json', context=self.context,
@@ -87,17 +96,32 @@ class LiveView:
 
     # ------------------------------------------------------------------ services
     def _call(self, name: str, request) -> bytes:
-        """On the SDK's thread: queue the call for the node's thread and wait for it."""
+        """On the SDK's thread: queue the call for the node's thread and wait for it.
+        Refused before the node sees it: a request over :data:`MAX_REQUEST_BYTES`, not a
+        JSON object, or with :data:`MAX_PENDING` calls already waiting. A call that times
+        out is withdrawn: the node skips it, so what the caller was told failed does not
+        happen later."""
+        payload = bytes(request.payload)
+        if len(payload) > MAX_REQUEST_BYTES:
+            raise ValueError(f'the request has {len(payload)} bytes, at most '
+                             f'{MAX_REQUEST_BYTES}')
         try:
-            args = json.loads(bytes(request.payload) or b'{}')
+            args = json.loads(payload or b'{}')
         except ValueError:
             raise ValueError('the request is not JSON') from None
+        if not isinstance(args, dict):
+            raise ValueError('the request is not a JSON object')
         done = threading.Event()
         box: list = []
-        self._requests.put((name, args if isinstance(args, dict) else {}, done, box))
+        try:
+            self._requests.put_nowait((name, args, done, box))
+        except queue.Full:
+            raise RuntimeError(f'busy: {MAX_PENDING} calls are waiting for the node') from None
         if not done.wait(SERVICE_TIMEOUT):
-            raise TimeoutError(f'the node did not answer within {SERVICE_TIMEOUT} s')
-        success, message = box[0]
+            box.append(None)                     # withdrawn: serve() skips it
+            if not done.is_set():
+                raise TimeoutError(f'the node did not answer within {SERVICE_TIMEOUT} s')
+        success, message = next(b for b in box if b is not None)
         return json.dumps({'success': bool(success), 'message': str(message)}).encode()
 
     def serve(self, limit: int = 8) -> None:
@@ -107,6 +131,8 @@ class LiveView:
                 name, args, done, box = self._requests.get_nowait()
             except queue.Empty:
                 return
+            if box:                                  # withdrawn by a caller that timed out
+                continue
             try:
                 box.append(self._handlers[name](args))
             except Exception as exc:                 # reported to the caller, not raised
@@ -150,8 +176,19 @@ class LiveView:
                                               for a, b, c in np.asarray(handles).tolist()]))
         self.scene.log(m.SceneUpdate(entities=entities), log_time=int(stamp_ns))
 
-    @staticmethod
-    def _obstacles(m, ts, frame_id, obstacles):
+    def _mesh_lists(self, m, verts, faces):
+        """A mesh obstacle's points and indices as the primitive takes them, built once
+        per mesh (held with it: its arrays never change) instead of every frame."""
+        hit = self._meshes.get(id(verts))
+        if hit is None or hit[0] is not verts:
+            hit = (verts, [m.Point3(x=a, y=b, z=c) for a, b, c in verts.tolist()],
+                   np.asarray(faces).reshape(-1).tolist())
+            if len(self._meshes) >= 16:
+                self._meshes.clear()
+            self._meshes[id(verts)] = hit
+        return hit[1], hit[2]
+
+    def _obstacles(self, m, ts, frame_id, obstacles):
         grey = m.Color(r=0.6, g=0.6, b=0.6, a=0.8)
         cubes, spheres, cylinders, triangles = [], [], [], []
         for shape, d, mesh in obstacles:
@@ -176,11 +213,9 @@ class LiveView:
                     pose=pose, size=m.Vector3(x=2 * r, y=2 * r, z=h), bottom_scale=1.0,
                     top_scale=1.0, color=grey))
             elif mesh is not None:
-                verts, faces = mesh
-                triangles.append(m.TriangleListPrimitive(
-                    pose=pose, color=grey,
-                    points=[m.Point3(x=a, y=b, z=c) for a, b, c in verts.tolist()],
-                    indices=np.asarray(faces).reshape(-1).tolist()))
+                points, indices = self._mesh_lists(m, *mesh)
+                triangles.append(m.TriangleListPrimitive(pose=pose, color=grey, points=points,
+                                                         indices=indices))
         return m.SceneEntity(timestamp=ts, frame_id=frame_id, id='obstacles', cubes=cubes,
                              spheres=spheres, cylinders=cylinders, triangles=triangles)
 

@@ -314,6 +314,15 @@ class ClothNode(Node):
                               f'starts with "{self.get_name()}:" or "/**:", then '
                               '"ros__parameters:")')
 
+    def _live_pause(self, args: dict) -> Tuple[bool, str]:
+        """The live view's pause: ``{"data": true}`` pauses, ``false`` resumes, ``{}``
+        pauses (a Trigger-like call); anything else is refused, not read as a truth
+        value (``"false"`` is a true string)."""
+        data = args.get('data', True)
+        if not isinstance(data, bool):
+            return False, f'data must be true or false, got {data!r}'
+        return self.pause(data)
+
     def _live_view(self, port: int, host: str):
         """The Foxglove server (:mod:`.live_view`), or ConfigError with the reason."""
         from .live_view import LiveView
@@ -321,7 +330,7 @@ class ClothNode(Node):
             raise ConfigError(f'foxglove.port must be in [1, 65535] (0: off), got {port}')
         handlers = {} if self.observe_only else {
             'reset': lambda args: self.reset(),
-            'pause': lambda args: self.pause(bool(args.get('data', True)))}
+            'pause': self._live_pause}
         try:
             live = LiveView(port, host, self.get_fully_qualified_name(), handlers)
         except ImportError as exc:
