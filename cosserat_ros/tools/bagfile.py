@@ -97,7 +97,11 @@ class BagWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)    # `record -o bags/run1`
         self.path.mkdir(exist_ok=False)
         self.file = self.path / f'{self.path.name}.mcap'
-        self._f = open(self.file, 'xb', buffering=0)    # raw: nothing held back to fail later
+        try:
+            self._f = open(self.file, 'xb', buffering=0)    # raw: nothing held back to fail
+        except OSError:
+            self.path.rmdir()                   # no empty directory left in the way
+            raise
         self._ts = typestore or get_typestore(Stores.ROS2_JAZZY)
         self._crc = 0
         self._pos = 0

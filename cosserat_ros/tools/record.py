@@ -213,7 +213,14 @@ def main(argv: List[str] = None) -> int:
     # past a file-size limit a write then fails (EFBIG) instead of killing the process
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     requested = [resolve(t, a.node) for t in (a.topics or DEFAULT_TOPICS)]
-    rclpy.init(args=['record'] + list(argv))
+    # Ctrl-C and SIGTERM only ask the loop to stop: an exception raised wherever the
+    # signal lands (inside a chunk's write or its fsync) would leave the bag's index
+    # short of what its statistics count, and a second Ctrl-C would break the close
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=['record'] + list(argv), signal_handler_options=SignalHandlerOptions.NO)
+    stop: List[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
     node = rclpy.create_node('cloth_recorder', parameter_overrides=[
         Parameter('use_sim_time', value=not a.wall_time)])
     log = node.get_logger()
@@ -222,12 +229,16 @@ def main(argv: List[str] = None) -> int:
     try:
         deadline = time.monotonic() + a.wait
         types: Dict[str, str] = {}
-        while time.monotonic() < deadline:
+        clock_wanted = not a.wall_time
+        while time.monotonic() < deadline and not stop:
             graph = dict(node.get_topic_names_and_types())
             types = {t: graph[t][0] for t in requested if t in graph}
-            if len(types) == len(requested):
+            # on sim time, /clock too (it can come up after the topics asked for)
+            if len(types) == len(requested) and (not clock_wanted or '/clock' in graph):
                 break
             rclpy.spin_once(node, timeout_sec=0.1)
+        if stop:
+            return 130
         if not types:
             print(f'record: error: no publisher of {", ".join(requested)} after {a.wait:g} s',
                   file=sys.stderr)
@@ -241,18 +252,31 @@ def main(argv: List[str] = None) -> int:
             log.warning('no /clock publisher: logging wall-clock receive times')
         if sim_time:                 # the latched /clock first: log times start right
             end = time.monotonic() + 5.0
-            while node.get_clock().now().nanoseconds == 0 and time.monotonic() < end:
+            while (node.get_clock().now().nanoseconds == 0 and time.monotonic() < end
+                   and not stop):
                 rclpy.spin_once(node, timeout_sec=0.05)
         clock = node.get_clock()
 
         def stamp() -> int:
             return clock.now().nanoseconds if sim_time else time.time_ns()
-        bag = BagWriter(out)
+        try:
+            bag = BagWriter(out)
+        except OSError as exc:                 # an unwritable place, a bad path
+            print(f'record: error: cannot create {out}: {exc.strerror or exc}',
+                  file=sys.stderr)
+            return 2
         failure: List[str] = []
 
         def subscribe(topic: str, type_name: str):
             qos, text = _qos_of(node, topic)
-            bag.add(topic, type_name, text)
+            try:
+                bag.add(topic, type_name, text)
+            except BagWriteError:
+                raise
+            except Exception as exc:          # a type rosbags does not know
+                log.warning(f'{topic}: not recorded, its type {type_name} is unknown to the '
+                            f'bag writer ({type(exc).__name__}: {exc})')
+                return
 
             def on_message(data, t=topic):
                 if failure:
@@ -269,7 +293,8 @@ def main(argv: List[str] = None) -> int:
                  f' ({"simulation" if sim_time else "wall-clock"} log times)')
         end = time.monotonic() + a.duration if a.duration > 0 else None
         next_look = time.monotonic() + 0.5
-        while rclpy.ok() and not failure and (end is None or time.monotonic() < end):
+        while (rclpy.ok() and not stop and not failure
+               and (end is None or time.monotonic() < end)):
             rclpy.spin_once(node, timeout_sec=0.05)
             if missing and time.monotonic() >= next_look:
                 next_look = time.monotonic() + 0.5
@@ -296,7 +321,14 @@ def main(argv: List[str] = None) -> int:
             print(f'record: wrote {sum(bag.counts.values())} messages to {out} '
                   f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())})')
         node.destroy_node()
+        # rclpy's shutdown puts back the signals' default action (ending the process
+        # with -2 on one more Ctrl-C): held back over it, then answered by nothing
+        stops = {signal.SIGINT, signal.SIGTERM}
+        signal.pthread_sigmask(signal.SIG_BLOCK, stops)
         rclpy.try_shutdown()
+        for sig in stops:
+            signal.signal(sig, lambda signum, frame: None)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
     return code
 
 

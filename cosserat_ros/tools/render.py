@@ -37,7 +37,10 @@ def _decode_mesh(raw: bytes) -> Tuple[float, np.ndarray, np.ndarray]:
     from rclpy.serialization import deserialize_message
     from visualization_msgs.msg import Marker, MarkerArray
     msg = deserialize_message(raw, MarkerArray)
-    tri = next(m for m in msg.markers if m.type == Marker.TRIANGLE_LIST)
+    tri = next((m for m in msg.markers if m.type == Marker.TRIANGLE_LIST), None)
+    if tri is None:
+        raise SystemExit('render: a mesh message has no TRIANGLE_LIST marker (is this the '
+                         "cloth node's ~/mesh?)")
     pts = np.array([(p.x, p.y, p.z) for p in tri.points]).reshape(-1, 3, 3)
     if tri.colors:
         col = np.array([(c.r, c.g, c.b, c.a) for c in tri.colors]).reshape(-1, 3, 4)
@@ -310,6 +313,8 @@ def main(argv=None) -> int:
     ap.add_argument('--wait', type=float, default=60.0,
                     help='with --live: how long to wait for the first mesh [s]')
     a = ap.parse_args(argv)
+    if a.frames < 1:
+        ap.error(f'--frames must be at least 1, got {a.frames}')
     if a.live:
         meshes, energies = live(a.live, a.node, a.wait)
         if not meshes:
@@ -320,9 +325,16 @@ def main(argv=None) -> int:
         if not os.path.isdir(a.bag):
             print(f'render: error: {a.bag} is not a bag directory', file=sys.stderr)
             return 2
-        meshes, energies, obstacles = read_bag(Path(a.bag), f'/{a.node}/mesh',
-                                               f'/{a.node}/energy',
-                                               f'/{a.node}/obstacle_markers')
+        try:
+            meshes, energies, obstacles = read_bag(Path(a.bag), f'/{a.node}/mesh',
+                                                   f'/{a.node}/energy',
+                                                   f'/{a.node}/obstacle_markers')
+        except SystemExit:
+            raise
+        except Exception as exc:             # not a rosbag2 directory, a broken file
+            print(f'render: error: cannot read {a.bag}: {type(exc).__name__}: {exc}',
+                  file=sys.stderr)
+            return 2
     else:
         ap.error('give a BAG directory or --live SECONDS')
     for p in render(meshes, energies, Path(a.output), a.times, a.frames,
