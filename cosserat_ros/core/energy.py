@@ -61,7 +61,8 @@ def totals(dens, dual_area, force, f_applied, mass, damp, v, x, pinned, gravity,
     * ``out[0:3]`` = sum_i A_i dens_i: the stretching, bending and coupling energy [J];
     * ``out[3]`` = kinetic energy 1/2 sum_i m_i |v_i + dt/2 a_i|^2 of the leapfrog velocity
       carried to the positions' time, with ``m_i a_i = f_i + f_applied_i + m_i g - c_i v_i``
-      (the step's acceleration, ``solvers/update.py``) and 0 at pinned vertices;
+      (the step's acceleration, ``solvers/update.py``); at a pinned or held vertex
+      1/2 m_i |v_i|^2, its prescribed velocity (0 for a pin);
     * ``out[4]`` = -sum_i m_i g . x_i, the gravity potential [J].
 
     Serial, in vertex order: the sums are the same numbers on any thread count."""
@@ -92,6 +93,8 @@ def totals(dens, dual_area, force, f_applied, mass, damp, v, x, pinned, gravity,
             w1 = v[i, 1] + h * (force[i, 1] + f_applied[i, 1] + m * g1 - c * v[i, 1]) / m
             w2 = v[i, 2] + h * (force[i, 2] + f_applied[i, 2] + m * g2 - c * v[i, 2]) / m
             kin += m * (w0 * w0 + w1 * w1 + w2 * w2)
+        else:           # a held vertex moves with its handle's velocity (a pin's is 0)
+            kin += m * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
     out[0] = s0
     out[1] = s1
     out[2] = s2

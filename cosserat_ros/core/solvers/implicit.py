@@ -438,8 +438,10 @@ class ImplicitSolver:
         react = mass * (vk - vn) / dt - (f + fa + mass * g - damp * vk)
         control.reaction[pinned] = react[pinned]
         dx = dt * vk
-        work = float(np.sum((fa * dx)[free]) + np.sum((react * dx)[pinned]))
-        diss = float(np.sum((damp * vk * dx)[free]))
+        # a held vertex: the applied force's work and the damping's loss as on a free one,
+        # and the reaction's work (a pin, dx = 0, does none)
+        work = float(np.sum(fa * dx) + np.sum((react * dx)[pinned]))
+        diss = float(np.sum(damp * vk * dx))
         x[:] = xk
         v[:] = vk
         if con is not None:

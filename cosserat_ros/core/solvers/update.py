@@ -49,7 +49,11 @@ def _prescribed(i, f0, f1, f2, x, v, control, m, c, dt):
     """A pinned or held vertex: it moves with its prescribed velocity u
     (``Control.pin_velocity``), and the force that takes, beyond the step's own forces f
     (internal, applied, gravity, damping), is its reaction ``r = m (u - v) / dt - f``
-    (``Control.reaction``; :mod:`..handles`). Returns (the work of r [J], 0, 0)."""
+    (``Control.reaction``; :mod:`..handles`). Returns (the work of r and of the applied
+    force over the step [J], the damping's dissipation [J], 0): the ledger of a free
+    vertex (the applied force's work, the damping's loss) plus what the handle does, so
+    that with the held vertices' kinetic energy (:mod:`..energy`) the balance closes
+    for a moving handle too; a pin (u = 0) does no work."""
     u = control.pin_velocity
     r = control.reaction
     fa = control.f_applied
@@ -61,14 +65,16 @@ def _prescribed(i, f0, f1, f2, x, v, control, m, c, dt):
         r[i, 0] = m * (u0 - v[i, 0]) / dt - (f0 + fa[i, 0] + m * g[0] - c * v[i, 0])
         r[i, 1] = m * (u1 - v[i, 1]) / dt - (f1 + fa[i, 1] + m * g[1] - c * v[i, 1])
         r[i, 2] = m * (u2 - v[i, 2]) / dt - (f2 + fa[i, 2] + m * g[2] - c * v[i, 2])
-    work = dt * (r[i, 0] * u0 + r[i, 1] * u1 + r[i, 2] * u2)
+    work = dt * ((r[i, 0] + fa[i, 0]) * u0 + (r[i, 1] + fa[i, 1]) * u1
+                 + (r[i, 2] + fa[i, 2]) * u2)
+    diss = dt * c * (v[i, 0] * u0 + v[i, 1] * u1 + v[i, 2] * u2)
     v[i, 0] = u0
     v[i, 1] = u1
     v[i, 2] = u2
     x[i, 0] += dt * u0
     x[i, 1] += dt * u1
     x[i, 2] += dt * u2
-    return work, 0.0, 0
+    return work, diss, 0
 
 
 @kernel(inline='always')
