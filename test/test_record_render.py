@@ -453,3 +453,33 @@ def test_obstacles_are_drawn_where_the_markers_put_them(tmp_path):
                                 k * 10 ** 8, 'world') for k in range(3)]
     written = render(meshes, [], tmp_path, frames=3, obstacles=[(0.0, raw)])
     assert {p.name for p in written} >= {'cloth.gif', 'cloth_0.000s.png'}
+
+
+def test_a_best_effort_publisher_is_recorded(tmp_path):
+    """A topic whose publisher is best-effort (a sensor driver's usual QoS): the recorder
+    subscribes best-effort too (a reliable subscription hears nothing from it)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('best_effort_talker', context=ctx)
+    pub = node.create_publisher(String, '/best_effort_chatter',
+                                QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    out = tmp_path / 'best_effort'
+    try:
+        p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '60', '--wall-time',
+                              '--duration', '2', '/best_effort_chatter'],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        end = time.monotonic() + 90
+        while p.poll() is None and time.monotonic() < end:
+            pub.publish(String(data='hello'))
+            time.sleep(0.02)
+        _, err = p.communicate(timeout=30)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert p.returncode == 0, err
+    with AnyReader([out]) as reader:
+        assert reader.message_count > 10

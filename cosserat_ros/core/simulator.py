@@ -585,7 +585,8 @@ class ClothSimulator:
     def handle_wrench(self, id):
         """(force (3) [N], torque (3) [N m]) the handle exerted on the cloth over the last
         step, world frame, torque about the handle's position (hanging at rest: the
-        weight it carries, upwards)."""
+        weight it carries, upwards). A handle whose every vertex slipped out (its
+        ``break_force``) is gone: ``ValueError``, and it is no longer in :attr:`handles`."""
         return self._handles.wrench(id, self.state.x, self.control.reaction)
 
     @property

@@ -162,19 +162,22 @@ def recover(path: Path) -> int:
 
 
 def _qos_of(node, topic: str):
-    """(the QoS to subscribe ``topic`` with, its metadata text): reliable, keep-last 100,
-    transient-local if a publisher latches it."""
+    """(the QoS to subscribe ``topic`` with, its metadata text): keep-last 100, what every
+    publisher can serve (as ros2 bag does): reliable unless one publisher is best-effort
+    (a reliable subscription would hear nothing from it), transient-local only if all
+    publishers latch (it would hear nothing from a volatile one)."""
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from .bagfile import qos_yaml
     infos = node.get_publishers_info_by_topic(topic)
-    latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                  for i in infos)
-    reliable = any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+    latched = bool(infos) and all(
+        i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+    reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
     depth = max([i.qos_profile.depth for i in infos] + [1])
-    return (QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+    return (QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE if reliable
+                       else ReliabilityPolicy.BEST_EFFORT,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
                        else DurabilityPolicy.VOLATILE),
-            qos_yaml(reliable or not infos, latched, depth))
+            qos_yaml(reliable, latched, depth))
 
 
 def main(argv: List[str] = None) -> int:
