@@ -287,16 +287,22 @@ def test_existing_bag_is_never_overwritten(bag):
     assert (sorted(os.listdir(bag)), (bag / 'cloth.mcap').stat().st_size) == before
 
 
-def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
-    out = tmp_path / 'interrupted'
+def recording(out):
+    """A recorder to ``out``, once it records (a fixed 4 s sleep raced the recorder's
+    start-up and discovery on a slow host: SIGINT came before any message, so no bag was
+    written) and a second later."""
     p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '150'],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    # interrupt once it is recording (a fixed 4 s sleep raced the recorder's start-up and
-    # discovery on a slow host: SIGINT came before any message, so no bag was written)
     end = time.monotonic() + 60
-    while time.monotonic() < end and not (out / 'interrupted.mcap').exists():
+    while time.monotonic() < end and not (out / f'{out.name}.mcap').exists():
         time.sleep(0.1)
     time.sleep(1.0)
+    return p
+
+
+def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
+    out = tmp_path / 'interrupted'
+    p = recording(out)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=30)
     assert p.returncode == 0 and 'Traceback' not in err
@@ -331,12 +337,7 @@ def test_repeated_sigint_leaves_a_consistent_bag(node, tmp_path):
     import yaml
     from mcap.reader import make_reader
     out = tmp_path / 'burst'
-    p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '150'],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    end = time.monotonic() + 60
-    while time.monotonic() < end and not (out / 'burst.mcap').exists():
-        time.sleep(0.1)
-    time.sleep(1.0)
+    p = recording(out)
     for _ in range(20):
         p.send_signal(signal.SIGINT)
         time.sleep(0.002)
