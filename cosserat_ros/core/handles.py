@@ -31,7 +31,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from .contact import rotation_matrix
-from .obstacles import _quaternion, _vec
+from .obstacles import _quaternion, _vec, id_key
 
 __all__ = ['HandleSet', 'MAX_TURN']
 
@@ -80,16 +80,8 @@ class HandleSet:
     def __len__(self):
         return len(self._items)
 
-    def _key(self, hid) -> int:
-        """The id as the int it is stored under; ValueError for anything else (a float
-        or a string is not truncated into another handle's id)."""
-        if (isinstance(hid, (bool, np.bool_)) or not isinstance(hid, (int, np.integer))
-                or int(hid) not in self._items):
-            raise ValueError(f'no handle with id {hid!r}')
-        return int(hid)
-
     def _item(self, hid) -> _Handle:
-        return self._items[self._key(hid)]
+        return self._items[id_key(self._items, hid, 'handle')]
 
     def held(self) -> np.ndarray:
         """Indices of every vertex some handle holds."""
@@ -152,8 +144,7 @@ class HandleSet:
         h.motion = (t, max(duration, dt), p0.copy(), q0.copy(), p1, q1)
 
     def release(self, hid) -> np.ndarray:
-        key = self._key(hid)
-        return self._items.pop(key).idx
+        return self._items.pop(id_key(self._items, hid, 'handle')).idx
 
     def describe(self, t) -> Dict[int, dict]:
         out = {}

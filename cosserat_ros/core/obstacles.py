@@ -15,6 +15,7 @@ already enters every contact's friction and normal response).
 """
 from __future__ import annotations
 
+import copy
 import math
 import os
 from typing import Dict, Optional, Tuple
@@ -117,6 +118,16 @@ class _Obstacle:
              'friction': {'static': self.friction[0], 'kinetic': self.friction[1]}}
         d.update(self.params)
         return d
+
+
+def id_key(items: dict, key, what: str) -> int:
+    """``key`` as the int an item of ``items`` is stored under; ValueError naming ``what``
+    for anything else (a float or a string is not truncated into another item's id).
+    The obstacles' and the handles' ids (:mod:`.handles`)."""
+    if (isinstance(key, (bool, np.bool_)) or not isinstance(key, (int, np.integer))
+            or int(key) not in items):
+        raise ValueError(f'no {what} with id {key!r}')
+    return int(key)
 
 
 class ObstacleSet:
@@ -250,13 +261,11 @@ class ObstacleSet:
 
     def snapshot(self):
         """Everything :meth:`restore_snapshot` needs to undo later changes."""
-        import copy
         return ({oid: copy.copy(o) for oid, o in self._items.items()}, self._next)
 
     def restore_snapshot(self, snap) -> None:
         """Back to the snapshot (copied again: later changes do not reach it, so it can be
         restored more than once)."""
-        import copy
         self._items = {oid: copy.copy(o) for oid, o in snap[0].items()}
         self._next = snap[1]
         self._rebuild()
@@ -270,12 +279,7 @@ class ObstacleSet:
         self._rebuild()
 
     def _key(self, oid) -> int:
-        """The id as the int it is stored under; ValueError for anything else (a float
-        or a string is not truncated into another obstacle's id)."""
-        if (isinstance(oid, (bool, np.bool_)) or not isinstance(oid, (int, np.integer))
-                or int(oid) not in self._items):
-            raise ValueError(f'no obstacle with id {oid!r}')
-        return int(oid)
+        return id_key(self._items, oid, 'obstacle')
 
     def _item(self, oid) -> _Obstacle:
         return self._items[self._key(oid)]

@@ -355,10 +355,8 @@ class ClothSimulator:
         self.state.assign(State.at_rest(self.mesh.vertices))
         self.solver.forget()
         # what the last step wrote (contact rows, reactions) belongs to the old state
-        self.control.contact[:, :3] = 0.0
-        self.control.contact[:, 3] = -1.0
+        self._clear_contacts()
         self.control.reaction[:] = 0.0
-        self._features.start()
         self._time = 0.0
         self._steps = 0
 
@@ -746,9 +744,14 @@ class ClothSimulator:
         self.control = self.control.with_obstacles(o.table, o.meta, o.data)
         self._features.set_shapes(*o.shapes)
         if changed_set or not len(o):
-            self.control.contact[:, :3] = 0.0
-            self.control.contact[:, 3] = -1.0
-            self._features.start()
+            self._clear_contacts()
+
+    def _clear_contacts(self) -> None:
+        """Forget the last step's contact output: each vertex's contact row (force, none)
+        and the corners' and edges' forces (:mod:`.features`)."""
+        self.control.contact[:, :3] = 0.0
+        self.control.contact[:, 3] = -1.0
+        self._features.start()
 
     def internal_forces(self) -> np.ndarray:
         """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""

@@ -793,14 +793,23 @@ class ClothNode(Node):
                 self._push_forces()
                 self.get_logger().warning(f'commanded forces dropped: {exc}')
         if self._field is not None and float(np.linalg.norm(self._field[0])) > self._max_acc:
-            self._field = None
-            self.sim.force_field = (0.0, 0.0, 0.0)
+            self._drop_field()
             self.get_logger().warning('force field dropped: above the new max_acceleration')
         if self._wind is not None and float(np.linalg.norm(self._wind[0])) > self._max_wind:
-            self._wind = None
-            self.sim.wind = self._steady_wind
+            self._drop_wind()
             self.get_logger().warning('streamed wind dropped: above the new max_wind; back '
                                       'to air.wind')
+
+    def _drop_field(self):
+        """The commanded force field ends (lapsed or above a lowered limit)."""
+        self._field = None
+        self.sim.force_field = (0.0, 0.0, 0.0)
+
+    def _drop_wind(self):
+        """The streamed wind ends (lapsed, above a lowered limit, air off): back to the
+        steady ``air.wind``."""
+        self._wind = None
+        self.sim.wind = self._steady_wind
 
     def _push_forces(self):
         parts = [f for f in self._forces.values() if f is not None]
@@ -829,12 +838,10 @@ class ClothNode(Node):
         if changed:
             self._push_forces()
         if self._field is not None and now - self._field[1] > self._force_timeout:
-            self._field = None
-            self.sim.force_field = (0.0, 0.0, 0.0)
+            self._drop_field()
             self.get_logger().info('force field lapsed')
         if self._wind is not None and now - self._wind[1] > self._force_timeout:
-            self._wind = None
-            self.sim.wind = self._steady_wind
+            self._drop_wind()
             self.get_logger().info('wind lapsed: back to air.wind')
 
     # ------------------------------------------------------------------ services
@@ -855,7 +862,7 @@ class ClothNode(Node):
         # (their velocity came from poses stamped before the reset, and their lapse
         # after force_timeout compares sim times)
         described = self.sim.obstacles
-        for oid, (_, p0, q0, key) in list(self._marker_seen.items()):
+        for oid, (_, _, _, key) in list(self._marker_seen.items()):
             d = described.get(oid)
             if d is not None:
                 self.sim.set_obstacle_pose(oid, d['position'], d['orientation'])
@@ -1023,8 +1030,7 @@ class ClothNode(Node):
                                      {k: self.get_parameter('air.' + k).value
                                       for k in AIR_KEYS})
             if self.sim.air is None and self._wind is not None:
-                self._wind = None
-                self.sim.wind = self._steady_wind
+                self._drop_wind()
         self._dirty = True
 
     # ------------------------------------------------------------------ the loop

@@ -222,7 +222,8 @@ def main(argv: List[str] = None) -> int:
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=['record'] + list(argv), signal_handler_options=SignalHandlerOptions.NO)
     stop: List[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    stop_signals = (signal.SIGINT, signal.SIGTERM)
+    for sig in stop_signals:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     node = rclpy.create_node('cloth_recorder', parameter_overrides=[
         Parameter('use_sim_time', value=not a.wall_time)])
@@ -326,12 +327,11 @@ def main(argv: List[str] = None) -> int:
         node.destroy_node()
         # rclpy's shutdown puts back the signals' default action (ending the process
         # with -2 on one more Ctrl-C): held back over it, then answered by nothing
-        stops = {signal.SIGINT, signal.SIGTERM}
-        signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+        signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
         rclpy.try_shutdown()
-        for sig in stops:
+        for sig in stop_signals:
             signal.signal(sig, lambda signum, frame: None)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
     return code
 
 

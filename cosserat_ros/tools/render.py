@@ -329,8 +329,6 @@ def main(argv=None) -> int:
             meshes, energies, obstacles = read_bag(Path(a.bag), f'/{a.node}/mesh',
                                                    f'/{a.node}/energy',
                                                    f'/{a.node}/obstacle_markers')
-        except SystemExit:
-            raise
         except Exception as exc:             # not a rosbag2 directory, a broken file
             print(f'render: error: cannot read {a.bag}: {type(exc).__name__}: {exc}',
                   file=sys.stderr)

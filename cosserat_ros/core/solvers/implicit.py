@@ -548,8 +548,6 @@ class ImplicitSolver:
             self._stale = False
             rep.factorizations += 1
         while unmet(res) and rmax > floor and it < self.iterations:
-            if not np.isfinite(res):
-                return None
             if self._pinv is None or not current() or self._stale:
                 factor()
             pinv = self._pinv
