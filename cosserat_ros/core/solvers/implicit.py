@@ -130,6 +130,32 @@ LINEARIZED_FORCING = 0.1
 #: N = 40, beta 14, gained from it, the hanging denim at N = 80, beta 7, lost)
 PLATE_RATIO = 10.0
 
+#: and above this ratio, the preconditioner is split in each vertex's frame into a
+#: tangential and a normal part (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet
+#: at beta 14 / 20 / 29 took 1.45x / 1.06x / 0.64x the time a step whole)
+SPLIT_RATIO = 25.0
+
+
+def vertex_frames(x: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(n, 3, 3): each vertex's frame at positions x, its columns two tangent axes and the
+    unit normal, the normal the area-weighted mean of its faces' (+z where they cancel or
+    it has none; ``ImplicitSolver._preconditioner``)."""
+    n = len(x)
+    fn = np.cross(x[corners[:, 1]] - x[corners[:, 0]], x[corners[:, 2]] - x[corners[:, 0]])
+    at = corners.ravel()
+    nrm = np.stack([np.bincount(at, weights=np.repeat(fn[:, k], 3), minlength=n)
+                    for k in range(3)], axis=1)
+    size = np.linalg.norm(nrm, axis=1)
+    flat = ~(size > 1e-300)
+    nrm[flat] = (0.0, 0.0, 1.0)
+    size[flat] = 1.0
+    nrm /= size[:, None]
+    # the first tangent: the coordinate axis least along the normal, made normal to it
+    e = np.eye(3)[np.argmin(np.abs(nrm), axis=1)]
+    t1 = e - np.sum(e * nrm, axis=1)[:, None] * nrm
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    return np.stack([t1, np.cross(nrm, t1), nrm], axis=2)
+
 
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
@@ -265,51 +291,84 @@ class ImplicitSolver:
         self._plate()
         return float(np.median(6.0 * coeff.xi * self._plate_diag / (coeff.mass / dt ** 2)))
 
-    def _pattern(self, plate: bool):
-        """The fixed sparsity of P (the membrane's face blocks, the diagonal blocks and,
-        with ``plate``, the plate operator on each coordinate), as CSC arrays, the map from
-        the assembled values to them, the plate operator's values for D = 1 N m (or None)
-        and the membrane's entry count; built once for each."""
-        if plate not in self._csc:
-            from ..terms.membrane import hessian_pattern
+    def _pattern(self, form: str):
+        """The fixed sparsity of P in ``form`` (``_preconditioner``), built once for each: a
+        list of ``(size, inv, nnz, indices, indptr)`` per factored matrix (the CSC arrays
+        and the map from the assembled entries to them: the 3n x 3n P, or its tangential
+        2n x 2n and normal n x n parts), and each entry's row and column vertex (for the
+        pins). The entries come in the order :meth:`_preconditioner` assembles them: the
+        membrane's face blocks, the per-vertex blocks, the plate operator (on each
+        coordinate, or on the normal part)."""
+        if form not in self._csc:
+            c = self.model.faces.corners
             n = self.model.n_vertices
-            r0, c0 = hessian_pattern(self.model.faces.corners)
-            k = np.arange(3)
-            r1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, :, None],
-                                 (n, 3, 3)).ravel()
-            c1 = np.broadcast_to(3 * np.arange(n)[:, None, None] + k[None, None, :],
-                                 (n, 3, 3)).ravel()
-            rows, cols, pvals = [r0, r1], [c0, c1], None
-            if plate:
-                pl = self._plate()
-                rows.append((3 * pl.row[:, None] + k).ravel())
-                cols.append((3 * pl.col[:, None] + k).ravel())
-                pvals = np.repeat(pl.data, 3)
-            rows, cols = np.concatenate(rows), np.concatenate(cols)
-            key = cols.astype(np.int64) * (3 * n) + rows       # column-major: CSC order
-            uniq, inv = np.unique(key, return_inverse=True)
-            indices = (uniq % (3 * n)).astype(np.int32)
-            indptr = np.searchsorted(uniq // (3 * n), np.arange(3 * n + 1)).astype(np.int32)
-            self._csc[plate] = (rows, cols, inv, len(uniq), indices, indptr, pvals, len(r0))
-        return self._csc[plate]
+            nf = len(c)
+            vert = np.arange(n)
+            mats, rv, cv = [], [], []
+            # (coordinates per vertex in the matrix, whether the plate is on them)
+            parts = {'blocks': ((3, False),), 'plate': ((3, True),),
+                     'split': ((2, False), (1, True))}[form]
+            for k, plate in parts:
+                a = np.arange(k)
+                fr = np.broadcast_to(c[:, :, None, None, None], (nf, 3, 3, k, k))
+                fc = np.broadcast_to(c[:, None, :, None, None], (nf, 3, 3, k, k))
+                vr = np.broadcast_to(vert[:, None, None], (n, k, k))
+                r_v = [fr.ravel(), vr.ravel()]
+                c_v = [fc.ravel(), vr.ravel()]
+                rows = [(k * fr + a[:, None]).ravel(), (k * vr + a[:, None]).ravel()]
+                cols = [(k * fc + a[None, :]).ravel(), (k * vr + a[None, :]).ravel()]
+                if plate:
+                    pl = self._plate()
+                    r_v.append(np.repeat(pl.row, k))
+                    c_v.append(np.repeat(pl.col, k))
+                    rows.append((k * pl.row[:, None] + a).ravel())
+                    cols.append((k * pl.col[:, None] + a).ravel())
+                rows, cols = np.concatenate(rows), np.concatenate(cols)
+                size = k * n
+                key = cols.astype(np.int64) * size + rows           # column-major: CSC order
+                uniq, inv = np.unique(key, return_inverse=True)
+                indices = (uniq % size).astype(np.int32)
+                indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
+                mats.append((size, inv, len(uniq), indices, indptr))
+                rv.append(np.concatenate(r_v))
+                cv.append(np.concatenate(c_v))
+            self._csc[form] = (mats, rv, cv)
+        return self._csc[form]
 
     def _preconditioner(self, coeff, x: np.ndarray, diag: np.ndarray, drag_dt,
                         pinned: np.ndarray, dt: float):
         """``z = P^-1 r`` (0 on the pinned vertices) as a function of r (n,3), P = (m / dt^2
         + c / dt) I (``diag``) + the drag's D / dt (``drag_dt``, or None) + the membrane's
         whole Hessian (positive part, ``membrane.face_hessians``) + the coupling's diagonal
-        blocks + for the bending either its diagonal blocks or, where it dominates the
-        inertia at the mesh's scale (:meth:`plate_ratio` above :data:`PLATE_RATIO`), its
-        whole plate operator ``6 xi K`` on each coordinate (``bending.plate_matrix``);
-        with the rows and columns of ``pinned`` (the pins and the vertices that stick to
-        an obstacle) replaced by the identity.
+        blocks + the bending's, with the rows and columns of ``pinned`` (the pins and the
+        vertices that stick to an obstacle) replaced by the identity. Three forms, by
+        beta, how far the bending dominates the inertia at the mesh's scale
+        (:meth:`plate_ratio`):
 
-        Why the choice: the diagonal blocks alone leave CG a condition number of about
-        1 + beta in the bending's band of modes (beta grows as N^4 at a fixed dt: 0.9 /
-        14 / 230 on issue 6's sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
-        iterations (~18 per Newton iteration at N = 80); the operator's fill makes each
-        factorization ~2.5x dearer, which a cloth that swings and so refactors P often
-        (11 oz denim: beta 0.4 at N = 40) does not win back.
+        * beta up to :data:`PLATE_RATIO`: P on the 3n coordinates, the bending's diagonal
+          3 x 3 blocks (``hessian_blocks``, positive semi-definite);
+        * up to :data:`SPLIT_RATIO`: P on the 3n coordinates, the bending's whole plate
+          operator ``6 xi K`` (``bending.plate_matrix``) on each coordinate;
+        * above: the plate operator on the displacement normal to the sheet only, and P
+          taken in each vertex's frame (two tangent axes and the normal,
+          :func:`vertex_frames`) and split there into a tangential 2n x 2n part and a
+          normal n x n part, factored apart: the blocks between a tangential and a
+          normal coordinate are left out.
+
+        Why the plate operator: the diagonal blocks alone leave CG a condition number of
+        about 1 + beta in the bending's band of modes (beta grows as N^4 at a fixed dt:
+        0.9 / 14 / 230 on issue 6's sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
+        iterations (~18 per Newton iteration at N = 80). Why the split: on each of the
+        three coordinates the operator's two-ring stencil meets the membrane's 3 x 3
+        blocks and the factor fills in (41.5 M entries at 160 x 160, a 38 ms solve, 1.6 s
+        to factor); split, the plate meets one coordinate a vertex and the membrane's
+        one-ring stencil two (10.6 M entries, 13 ms, 0.3 s). What it leaves out is
+        small where the bending dominates the inertia at the mesh's scale: it keeps the
+        surface smooth there, so that neighbouring frames turn little, and the
+        membrane's in-plane stiffness reaches a normal coordinate only through that
+        turn (flat, the two parts are exactly P's). Nearer the ratio it is not small:
+        issue 6's sheet at beta 14 took 1.4x the CG iterations split, at beta 20 about
+        the same time, at beta 29 less time (docs/performance.md).
 
         Factored by SuperLU in single precision: a preconditioner needs no more (the CG
         iterations stay the same), and its solves, the solver's largest cost, take less
@@ -320,10 +379,11 @@ class ImplicitSolver:
         mdl = self.model
         f = mdl.faces
         n = len(x)
-        plate = self.plate_ratio(coeff, dt) > PLATE_RATIO
-        rows, cols, inv, nnz, indices, indptr, pvals, nface = self._pattern(plate)
-        blocks = (np.zeros((n, 3, 3)) if plate
-                  else TERMS['bending'].hessian_blocks(mdl, coeff, x))
+        beta = self.plate_ratio(coeff, dt)
+        form = ('blocks' if beta <= PLATE_RATIO else 'plate' if beta <= SPLIT_RATIO
+                else 'split')
+        blocks = (TERMS['bending'].hessian_blocks(mdl, coeff, x) if form == 'blocks'
+                  else np.zeros((n, 3, 3)))
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
@@ -332,26 +392,53 @@ class ImplicitSolver:
         blocks[pinned] = np.eye(3)
         blk = self._face_blk
         face_hessians(x, f.corners, f.dinv, f.area, coeff.zeta, True, blk)
-        vals = [blk.ravel(), blocks.ravel()]
-        if plate:
-            vals.append(6.0 * coeff.xi * pvals)
-        vals = np.concatenate(vals)
-        if pinned.any():
-            pd = np.repeat(pinned, 3)
-            off = pd[rows] | pd[cols]
-            off[nface:nface + blocks.size] = False        # the identity blocks stay
-            vals[off] = 0.0
-        data = np.bincount(inv, weights=vals, minlength=nnz)
-        lu = splu(sp.csc_matrix((data.astype(np.float32), indices, indptr),
-                                shape=(3 * n, 3 * n)),
-                  permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-                  options={'SymmetricMode': True})
+        plate = 6.0 * coeff.xi * self._plate().data if form != 'blocks' else None
+        if form == 'split':
+            frame = vertex_frames(x, f.corners)
+            rf = frame[f.corners]
+            blk = np.einsum('tcra,tcdrq,tdqb->tcdab', rf, blk, rf, optimize=True)
+            blocks = np.einsum('nra,nrq,nqb->nab', frame, blocks, frame, optimize=True)
+            vals = [np.concatenate([blk[..., :2, :2].ravel(), blocks[:, :2, :2].ravel()]),
+                    np.concatenate([blk[..., 2, 2].ravel(), blocks[:, 2, 2], plate])]
+        else:
+            vals = [blk.ravel(), blocks.ravel()]
+            if plate is not None:
+                vals.append(np.repeat(plate, 3))
+            vals = [np.concatenate(vals)]
+        mats, rv, cv = self._pattern(form)
+        lus = []
+        for (size, inv, nnz, indices, indptr), v, r_v, c_v in zip(mats, vals, rv, cv):
+            if pinned.any():
+                k = size // n
+                off = pinned[r_v] | pinned[c_v]
+                nface = len(f.corners) * 9 * k * k
+                off[nface:nface + n * k * k] = False        # the identity's blocks stay
+                v = np.where(off, 0.0, v)
+            data = np.bincount(inv, weights=v, minlength=nnz)
+            lus.append(splu(sp.csc_matrix((data.astype(np.float32), indices, indptr),
+                                          shape=(size, size)),
+                            permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+                            options={'SymmetricMode': True}))
 
-        def solve(r):
-            z = lu.solve(r.reshape(-1).astype(np.float32)).reshape(n, 3).astype(np.float64)
+        if form != 'split':
+            lu = lus[0]
+
+            def solve(r):
+                z = lu.solve(r.reshape(-1).astype(np.float32)).reshape(n, 3).astype(np.float64)
+                z[pinned] = 0.0
+                return z
+            return solve
+        lt, ln = lus
+        tang, nrm = frame[:, :, :2], frame[:, :, 2]
+
+        def solve_split(r):
+            zt = lt.solve(np.einsum('nra,nr->na', tang, r).astype(np.float32).reshape(-1))
+            zn = ln.solve(np.sum(nrm * r, axis=1).astype(np.float32))
+            z = (np.einsum('nra,na->nr', tang, zt.reshape(n, 2).astype(np.float64))
+                 + nrm * zn[:, None])
             z[pinned] = 0.0
             return z
-        return solve
+        return solve_split
 
     # ------------------------------------------------------------------ step
     def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
