@@ -126,19 +126,23 @@ def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
     assert ex.solver_kind == 'explicit' and ex.dt == pytest.approx(0.9 * ex.critical_dt())
     assert STIFF.youngs_2d == 2e3 and ISSUE6.youngs_2d == 500.0
     assert np.array_equal(im.pinned, ex.pinned) and im.pinned.sum() == 24
-    part_implicit([6], budget_s=0.05)
+    part_implicit([6], window_s=0.25)
     rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| issue6')
             or l.startswith('| stiff')]
     assert len(rows) == 2 and all(float(r.split('|')[6]) > 0 for r in rows)   # RTF
     for r in rows:                       # MuJoCo discrete beside it, and the RTF ratio
         cells = [c.strip() for c in r.split('|')[1:-1]]
-        assert len(cells) == 12
+        assert len(cells) == 14
+        ours_fall, theirs_fall = (c.strip() for c in cells[12].split('/'))
+        assert float(ours_fall) > 0
         if peer.available() is None:
-            assert cells[9:] == ['-', '-', '-']
+            assert cells[9:12] == ['-', '-', '-'] and theirs_fall == '-' and cells[13] == '-'
         else:
-            ms, rtf, ratio = (float(c) for c in cells[9:])
+            ms, rtf, ratio = (float(c) for c in cells[9:12])
             assert ms > 0 and rtf > 0
             assert ratio == pytest.approx(float(cells[5]) / rtf, rel=0.02)
+            assert float(cells[13]) == pytest.approx(float(theirs_fall) / float(ours_fall),
+                                                     rel=0.05)
 
 
 def test_self_part_folds_the_cloth_into_touching_layers_without_stretching_it(capsys):
