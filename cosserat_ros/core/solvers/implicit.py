@@ -29,9 +29,11 @@ Newton's method:
   preconditioned by a sparse factorization of P = the mass and damping + the membrane's
   whole Hessian (its positive part) + the bending's and coupling's per-vertex 3x3 blocks
   (``hessian_blocks``, positive semi-definite; where the bending dominates the inertia
-  at the mesh's scale, its whole plate operator instead of its blocks), kept across
-  iterations and steps until CG needs more than twice what it took with it fresh and
-  more than ``refresh`` (8) iterations (``ImplicitSolver._preconditioner``);
+  at the mesh's scale, its whole plate operator instead of its blocks, and where it
+  dominates by more, P factored in each vertex's frame as an in-plane and a normal
+  part), kept across iterations and steps until CG needs more than twice what it took
+  with it fresh and more than ``refresh`` (8) iterations
+  (``ImplicitSolver._preconditioner``);
   stopped at the inexact-Newton forcing tolerance ``|r + A+ p| <= eta |r|`` (Eisenstat &
   Walker 1996, eta = min(0.5, sqrt(|r| / |r_0|))), or where ``q^T A+ q <= 0`` (negative
   curvature, which the bending can still have: Steihaug truncation, Nocedal & Wright
