@@ -112,6 +112,11 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     assert c.pump(30, lambda: '/cloth_node/scene' in c.channels
                   and '/cloth_node/reset' in c.services), (c.channels, proc.poll())
     assert 'time' in c.info['capabilities'] and 'services' in c.info['capabilities']
+    # each service advertised as the node's own ROS service, its request's schema with it
+    pause, reset = c.services['/cloth_node/pause'], c.services['/cloth_node/reset']
+    assert (pause['type'], reset['type']) == ('std_srvs/srv/SetBool', 'std_srvs/srv/Trigger')
+    assert json.loads(pause['request']['schema'])['properties']['data'] == {'type': 'boolean'}
+    assert 'properties' not in json.loads(reset['request']['schema'])
     scene = c.channels['/cloth_node/scene']
     assert scene['encoding'] == 'protobuf' and scene['schemaName'] == 'foxglove.SceneUpdate'
     SceneUpdate = protobuf_class(scene)

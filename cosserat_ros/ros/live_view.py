@@ -15,8 +15,10 @@ channel / service          schema                          content
                                                             spheres, cylinders, triangles)
                                                             and ``handles`` (spheres)
 ``/cloth_node/energy``     JSON                            the energy terms [J], sim time
-``/cloth_node/reset``      service, JSON                   as ``~/reset``
-``/cloth_node/pause``      service, JSON ``{"data": b}``   as ``~/pause``
+``/cloth_node/reset``      service std_srvs/srv/Trigger,   as ``~/reset``
+                           JSON ``{}``
+``/cloth_node/pause``      service std_srvs/srv/SetBool,   as ``~/pause``
+                           JSON ``{"data": b}``
 =========================  ==============================  =================================
 
 Log times are simulation time, which the server also broadcasts (the *Time* capability),
@@ -35,7 +37,18 @@ from typing import Callable, Dict, Optional
 
 import numpy as np
 
-__all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS']
+__all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS', 'SERVICE_TYPES']
+
+#: each service's ROS type and its request's JSON schema, as the node's own services
+#: (``~/reset`` std_srvs/Trigger, ``~/pause`` std_srvs/SetBool), so that a client fills
+#: in the right request; both answer a Trigger's / SetBool's response
+SERVICE_TYPES = {
+    'reset': ('std_srvs/srv/Trigger', {'type': 'object'}),
+    'pause': ('std_srvs/srv/SetBool', {'type': 'object',
+                                       'properties': {'data': {'type': 'boolean'}}}),
+}
+RESPONSE = {'type': 'object', 'properties': {'success': {'type': 'boolean'},
+                                             'message': {'type': 'string'}}}
 
 #: [s] how long a service call waits for the node's next tick
 SERVICE_TIMEOUT = 2.0
@@ -69,15 +82,17 @@ class LiveView:
         self._requests: 'queue.Queue' = queue.Queue(maxsize=MAX_PENDING)
         self._meshes: dict = {}
         self.context = foxglove.Context()
-        schema = foxglove.ServiceSchema(
-            'std_srvs/Trigger',
-            request=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
-                name='request', encoding='jsonschema', data=b'{"type": "object"}')),
-            response=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
-                name='response', encoding='jsonschema',
-                data=json.dumps({'type': 'object', 'properties': {
-                    'success': {'type': 'boolean'}, 'message': {'type': 'string'}}}).encode())))
-        services = [foxglove.Service(f'{prefix}/{name}', schema=schema,
+        def schema(name):
+            kind, request = SERVICE_TYPES.get(name, SERVICE_TYPES['reset'])
+            return foxglove.ServiceSchema(
+                kind,
+                request=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
+                    name=f'{kind}_Request', encoding='jsonschema',
+                    data=json.dumps(request).encode())),
+                response=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(
+                    name=f'{kind}_Response', encoding='jsonschema',
+                    data=json.dumps(RESPONSE).encode())))
+        services = [foxglove.Service(f'{prefix}/{name}', schema=schema(name),
                                      handler=lambda req, n=name: self._call(n, req))
                     for name in handlers]
         self.server = foxglove.start_server(
