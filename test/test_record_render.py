@@ -328,6 +328,15 @@ def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     with open(crashed / 'crashed.mcap', 'rb') as fh:                # the rebuilt file
         assert sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages()) == \
             len(msgs)
+    # each topic keeps the QoS it was recorded with: /clock latched, depth 1 (the
+    # recovery had written every topic as reliable, volatile, depth 5)
+    import yaml
+    meta = yaml.safe_load((crashed / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    qos = {t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+           for t in meta['topics_with_message_count']}
+    clock = qos['/clock'][0] if isinstance(qos['/clock'], list) else yaml.safe_load(
+        qos['/clock'])[0]
+    assert clock['durability'] == 'transient_local' and clock['depth'] == 1, qos['/clock']
 
 
 def test_repeated_sigint_leaves_a_consistent_bag(node, tmp_path):

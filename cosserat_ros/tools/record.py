@@ -56,7 +56,8 @@ def resolve(topic: str, node_name: str) -> str:
 def scan_mcap(path: Path):
     """Messages of an MCAP file up to its last complete record, tolerating a torn tail.
 
-    Yields (topic, msgtype, log_time_ns, data). Reads the top-level records (op, uint64
+    Yields (topic, msgtype, offered QoS profiles (the channel's metadata, or None),
+    log_time_ns, data). Reads the top-level records (op, uint64
     length, body) and the schema (0x03), channel (0x04) and message (0x05) records inside
     uncompressed chunks (0x06), which is what this recorder writes."""
     import struct
@@ -97,7 +98,13 @@ def scan_mcap(path: Path):
             cid, o = u16(buf, o)
             sid, o = u16(buf, o)
             topic, o = string(buf, o)
-            channels[cid] = (topic, schemas.get(sid, ''))
+            _, o = string(buf, o)                 # the message encoding (cdr)
+            size, o = u32(buf, o)                 # the metadata map, in bytes
+            meta, stop = {}, min(o + size, end)
+            while o < stop:
+                key, o = string(buf, o)
+                meta[key], o = string(buf, o)
+            channels[cid] = (topic, schemas.get(sid, ''), meta.get('offered_qos_profiles'))
         elif op == 0x05:
             cid, o = u16(buf, o)
             _, o = u32(buf, o)
@@ -129,7 +136,8 @@ def scan_mcap(path: Path):
 
 def recover(path: Path) -> int:
     """Rebuild a bag whose recorder was killed: every message of its complete chunks is
-    rewritten into a valid rosbag2 directory (the torn file is kept as ``*.mcap.partial``)."""
+    rewritten into a valid rosbag2 directory, each topic with the QoS its channel was
+    recorded with (the torn file is kept as ``*.mcap.partial``)."""
     import shutil
     path = Path(path)
     mcap = path / f'{path.name}.mcap'
@@ -145,9 +153,9 @@ def recover(path: Path) -> int:
     if tmp.exists():
         shutil.rmtree(tmp)
     bag = BagWriter(tmp)
-    for topic, msgtype, stamp, data in scan_mcap(mcap):
+    for topic, msgtype, qos, stamp, data in scan_mcap(mcap):
         if topic not in bag.topics:
-            bag.add(topic, msgtype)
+            bag.add(topic, msgtype, qos)
         bag.write(topic, stamp, data)
     bag.close()
     mcap.rename(path / f'{path.name}.mcap.partial')
