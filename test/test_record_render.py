@@ -493,3 +493,45 @@ def test_a_best_effort_publisher_is_recorded(tmp_path):
     assert p.returncode == 0, err
     with AnyReader([out]) as reader:
         assert reader.message_count > 10
+
+
+def test_a_reset_while_recording_keeps_the_log_times_going_forward(node, tmp_path):
+    """~/reset sends the node's /clock back to 0: the recorder's log times continue from
+    where they were (a player sorts by log time, and would interleave the two runs), while
+    the recorded /clock messages themselves go back."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from std_srvs.srv import Trigger
+    from mcap.reader import make_reader
+    out = tmp_path / 'reset'
+    p = recording(out)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    client_node = rclpy.create_node('resetter', context=ctx)
+    try:
+        cli = client_node.create_client(Trigger, '/cloth_node/reset')
+        assert cli.wait_for_service(timeout_sec=30)
+        time.sleep(1.0)                          # the clock well past the reset's 0
+        fut = cli.call_async(Trigger.Request())
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(client_node)
+        executor.spin_until_future_complete(fut, timeout_sec=30)
+        assert fut.result() is not None and fut.result().success
+        time.sleep(1.5)
+    finally:
+        client_node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 0, err
+    store = get_typestore(Stores.ROS2_JAZZY)
+    log_times, clock = [], []
+    with open(out / 'reset.mcap', 'rb') as fh:
+        for _, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            log_times.append(message.log_time)
+            if channel.topic == '/clock':
+                msg = store.deserialize_cdr(message.data, 'rosgraph_msgs/msg/Clock')
+                clock.append(msg.clock.sec * 10 ** 9 + msg.clock.nanosec)
+    assert np.all(np.diff(log_times) >= 0)                   # in the file's own order
+    assert np.any(np.diff(clock) < -5e8), clock              # the reset is in the bag

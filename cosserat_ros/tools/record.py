@@ -11,7 +11,10 @@ the ``mcap`` libraries open the result.
 
 Log times are simulation time, as ``ros2 bag record --use-sim-time`` gives: the recorder
 follows ``/clock`` (the node publishes it before the state of the same instant, so a mesh
-is logged at its header stamp) and the bag plays back on its own clock. ``--wall-time``
+is logged at its header stamp) and the bag plays back on its own clock. When ``/clock``
+goes back (``~/reset`` restarts the node at t = 0) the log times continue from where they
+were, so that the bag still plays in the order it was recorded; the messages' own
+stamps keep the node's time. ``--wall-time``
 logs receive times instead; without a ``/clock`` publisher the recorder says so and logs
 wall time.
 
@@ -268,9 +271,21 @@ def main(argv: List[str] = None) -> int:
                    and not stop):
                 rclpy.spin_once(node, timeout_sec=0.05)
         clock = node.get_clock()
+        # [the offset added to the sim clock, the last sim time read]: a ~/reset sends
+        # the node's clock back to 0, and the log times continue from where they were
+        back = [0, 0]
 
         def stamp() -> int:
-            return clock.now().nanoseconds if sim_time else time.time_ns()
+            if not sim_time:
+                return time.time_ns()
+            now = clock.now().nanoseconds
+            if now < back[1]:
+                back[0] += back[1] - now
+                log.info(f'/clock went back from {back[1] * 1e-9:.3f} s to '
+                         f'{now * 1e-9:.3f} s (a reset?): log times continue from '
+                         f'{(now + back[0]) * 1e-9:.3f} s')
+            back[1] = now
+            return now + back[0]
         try:
             bag = BagWriter(out)
         except OSError as exc:                 # an unwritable place, a bad path
