@@ -140,15 +140,18 @@ SPLIT_RATIO = 25.0
 
 def vertex_frames(x: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """(n, 3, 3): each vertex's frame at positions x, its columns two tangent axes and the
-    unit normal, the normal the area-weighted mean of its faces' (+z where they cancel or
-    it has none; ``ImplicitSolver._preconditioner``)."""
+    unit normal, the normal the area-weighted mean of its faces' (+z where they cancel to
+    round-off or it has none; ``ImplicitSolver._preconditioner``)."""
     n = len(x)
     fn = np.cross(x[corners[:, 1]] - x[corners[:, 0]], x[corners[:, 2]] - x[corners[:, 0]])
     at = corners.ravel()
     nrm = np.stack([np.bincount(at, weights=np.repeat(fn[:, k], 3), minlength=n)
                     for k in range(3)], axis=1)
     size = np.linalg.norm(nrm, axis=1)
-    flat = ~(size > 1e-300)
+    # where the faces' normals (nearly) cancel, as on the crease of a cloth folded flat,
+    # their sum is round-off: +z then, as for a vertex without faces
+    total = np.bincount(at, weights=np.repeat(np.linalg.norm(fn, axis=1), 3), minlength=n)
+    flat = ~(size > 1e-9 * total) | ~(size > 1e-300)
     nrm[flat] = (0.0, 0.0, 1.0)
     size[flat] = 1.0
     nrm /= size[:, None]
@@ -364,13 +367,18 @@ class ImplicitSolver:
         three coordinates the operator's two-ring stencil meets the membrane's 3 x 3
         blocks and the factor fills in (41.5 M entries at 160 x 160, a 38 ms solve, 1.6 s
         to factor); split, the plate meets one coordinate a vertex and the membrane's
-        one-ring stencil two (10.6 M entries, 13 ms, 0.3 s). What it leaves out is
+        one-ring stencil two (10.7 M entries, 13 ms, 0.3 s). What it leaves out is
         small where the bending dominates the inertia at the mesh's scale: it keeps the
         surface smooth there, so that neighbouring frames turn little, and the
         membrane's in-plane stiffness reaches a normal coordinate only through that
-        turn (flat, the two parts are exactly P's). Nearer the ratio it is not small:
-        issue 6's sheet at beta 14 took 1.4x the CG iterations split, at beta 20 about
-        the same time, at beta 29 less time (docs/performance.md).
+        turn (flat and without the coupling's blocks, phi = 0, the two parts are exactly
+        P's; the coupling's blocks join the tangential and the normal coordinates of a
+        vertex, and their link is left out too). Nearer the ratio it is not small: issue
+        6's sheet at beta 14 took 1.45x the time a step split (2.2x the CG iterations),
+        at beta 20 1.06x, at beta 29 0.64x (docs/performance.md). And why not the
+        operator below PLATE_RATIO: its fill makes each factorization ~2.5x dearer,
+        which a cloth that swings and so refactors P often (11 oz denim: beta 0.4 at
+        N = 40) does not win back.
 
         Factored by SuperLU in single precision: a preconditioner needs no more (the CG
         iterations stay the same), and its solves, the solver's largest cost, take less
