@@ -115,7 +115,8 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     # each service advertised as the node's own ROS service, its request's schema with it
     pause, reset = c.services['/cloth_node/pause'], c.services['/cloth_node/reset']
     assert (pause['type'], reset['type']) == ('std_srvs/srv/SetBool', 'std_srvs/srv/Trigger')
-    assert json.loads(pause['request']['schema'])['properties']['data'] == {'type': 'boolean'}
+    request = json.loads(pause['request']['schema'])
+    assert request['properties']['data'] == {'type': 'boolean'} and request['required'] == ['data']
     assert 'properties' not in json.loads(reset['request']['schema'])
     scene = c.channels['/cloth_node/scene']
     assert scene['encoding'] == 'protobuf' and scene['schemaName'] == 'foxglove.SceneUpdate'
@@ -154,6 +155,8 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     # bad calls are refused, not read: "false" is not false (a true string), a request
     # that is not a JSON object, one over MAX_REQUEST_BYTES (refused before parsing)
     res = c.call('/cloth_node/pause', {'data': 'false'}, 3)
+    assert not res.get('success') and 'true or false' in res['message'], res
+    res = c.call('/cloth_node/pause', {}, 7)          # SetBool: no default to guess
     assert not res.get('success') and 'true or false' in res['message'], res
     assert 'not a JSON object' in c.call('/cloth_node/pause', [1, 2], 4)['failure']
     assert 'at most' in c.call('/cloth_node/reset', {'pad': 'x' * 5000}, 5)['failure']

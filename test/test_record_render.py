@@ -461,8 +461,50 @@ def test_obstacles_are_drawn_where_the_markers_put_them(tmp_path):
     m = grid_mesh(4, 4)
     meshes = [mesh_marker_array(m.vertices, m.faces, colormap(m.vertices[:, 0], 0, 1),
                                 k * 10 ** 8, 'world') for k in range(3)]
-    written = render(meshes, [], tmp_path, frames=3, obstacles=[(0.0, raw)])
+    written = render(meshes, [], tmp_path, frames=3, obstacles=[(0, raw)])
     assert {p.name for p in written} >= {'cloth.gif', 'cloth_0.000s.png'}
+
+
+def test_render_follows_a_reset_by_recording_order(tmp_path, monkeypatch):
+    """A bag spanning ~/reset has the node's times twice: each picture is drawn with the
+    obstacles recorded before it (not those of the first run's same time), its file is
+    not written over by the second run's picture of the same time, and the energy plot
+    draws each run as a line of its own."""
+    from rclpy.serialization import serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+    from cosserat_ros.mesh import grid_mesh
+    from cosserat_ros.ros.conversions import colormap, mesh_marker_array
+    from cosserat_ros.tools import render as rd
+
+    def ball(z):
+        m = Marker(type=Marker.SPHERE, action=Marker.ADD)
+        m.pose.position.z, m.pose.orientation.w = z, 1.0
+        m.scale.x = m.scale.y = m.scale.z = 0.2
+        return serialize_message(MarkerArray(markers=[m]))
+    m = grid_mesh(4, 4)
+    # times 0, 0.1 | reset | 0, 0.1 | reset | 0: five meshes, a ball at a new height each run
+    meshes = [mesh_marker_array(m.vertices, m.faces, colormap(m.vertices[:, 0], 0, 1),
+                                k % 2 * 10 ** 8, 'world') for k in range(5)]
+    drawn = []
+    real = rd.render_frame
+    monkeypatch.setattr(rd, 'render_frame', lambda ax, *a: (drawn.append(
+        (a[0], [float(np.mean(p.reshape(-1, 3)[:, 2])) for p in a[-1]])), real(ax, *a)))
+    written = rd.render(meshes, [], tmp_path, frames=5,
+                        obstacles=[(0, ball(0.1)), (2, ball(0.2)), (4, ball(0.3))])
+    stills = drawn[:3]                        # meshes 0, 2, 4, all at t = 0
+    assert [t for t, _ in stills] == [0.0, 0.0, 0.0]
+    assert [z for _, z in stills] == [pytest.approx([0.1]), pytest.approx([0.2]),
+                                      pytest.approx([0.3])]
+    pngs = [p for p in written if p.suffix == '.png']
+    assert len(set(pngs)) == 3 and all(p.exists() for p in pngs)
+    lines = []
+    monkeypatch.setattr(rd.plt.Axes, 'plot', lambda self, x, y, **kw: lines.append(x))
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    energies = [serialize_message(DiagnosticArray(status=[DiagnosticStatus(values=[
+        KeyValue(key='sim_time', value=str(t)), KeyValue(key='kinetic', value='1.0')])]))
+        for t in (0.0, 0.1, 0.0, 0.1)]
+    rd.energy_plot(energies, tmp_path / 'energy.png')
+    assert lines and np.isnan(lines[0]).sum() == 1        # two runs, one break
 
 
 def test_a_best_effort_publisher_is_recorded(tmp_path):

@@ -44,7 +44,7 @@ __all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS', 'SERVICE_TYPES']
 #: in the right request; both answer a Trigger's / SetBool's response
 SERVICE_TYPES = {
     'reset': ('std_srvs/srv/Trigger', {'type': 'object'}),
-    'pause': ('std_srvs/srv/SetBool', {'type': 'object',
+    'pause': ('std_srvs/srv/SetBool', {'type': 'object', 'required': ['data'],
                                        'properties': {'data': {'type': 'boolean'}}}),
 }
 RESPONSE = {'type': 'object', 'properties': {'success': {'type': 'boolean'},
@@ -83,7 +83,7 @@ class LiveView:
         self._meshes: dict = {}
         self.context = foxglove.Context()
         def schema(name):
-            kind, request = SERVICE_TYPES.get(name, SERVICE_TYPES['reset'])
+            kind, request = SERVICE_TYPES[name]
             return foxglove.ServiceSchema(
                 kind,
                 request=foxglove.MessageSchema(encoding='json', schema=foxglove.Schema(

@@ -315,10 +315,10 @@ class ClothNode(Node):
                               '"ros__parameters:")')
 
     def _live_pause(self, args: dict) -> Tuple[bool, str]:
-        """The live view's pause: ``{"data": true}`` pauses, ``false`` resumes, ``{}``
-        pauses (a Trigger-like call); anything else is refused, not read as a truth
-        value (``"false"`` is a true string)."""
-        data = args.get('data', True)
+        """The live view's pause, a std_srvs/SetBool: ``{"data": true}`` pauses,
+        ``false`` resumes; anything else (no ``data``, ``"false"``, which is a true
+        string) is refused, not read as a truth value."""
+        data = args.get('data')
         if not isinstance(data, bool):
             return False, f'data must be true or false, got {data!r}'
         return self.pause(data)

@@ -11,7 +11,7 @@ the ``mcap`` libraries open the result.
 
 Log times are simulation time, as ``ros2 bag record --use-sim-time`` gives: the recorder
 follows ``/clock`` (the node publishes it before the state of the same instant, so a mesh
-is logged at its header stamp) and the bag plays back on its own clock. When ``/clock``
+is logged at its header stamp, until a reset) and the bag plays back on its own clock. When ``/clock``
 goes back (``~/reset`` restarts the node at t = 0) the log times continue from where they
 were, so that the bag still plays in the order it was recorded; the messages' own
 stamps keep the node's time. ``--wall-time``
@@ -57,7 +57,8 @@ def resolve(topic: str, node_name: str) -> str:
 
 
 def scan_mcap(path: Path):
-    """Messages of an MCAP file up to its last complete record, tolerating a torn tail.
+    """Messages of an MCAP file up to its last complete record, tolerating a torn tail
+    (and stopping at a corrupt record as at a torn one).
 
     Yields (topic, msgtype, offered QoS profiles (the channel's metadata, or None),
     log_time_ns, data). Reads the top-level records (op, uint64
@@ -76,7 +77,9 @@ def scan_mcap(path: Path):
 
     def string(b, o):
         n, o = u32(b, o)
-        return b[o:o + n].decode(), o + n
+        if o + n > len(b):
+            raise ValueError('a string runs past the file')
+        return bytes(b[o:o + n]).decode(), o + n
 
     data = Path(path).read_bytes()
     if not data.startswith(b'\x89MCAP0\r\n'):
@@ -117,24 +120,30 @@ def scan_mcap(path: Path):
                 return channels[cid] + (log_time, bytes(buf[o:end]))
         return None
 
-    for op, buf, o, end in records(data, 8, len(data)):
-        if op == 0x06:
-            _, o = u64(buf, o)
-            _, o = u64(buf, o)
-            _, o = u64(buf, o)
-            _, o = u32(buf, o)
-            comp, o = string(buf, o)
-            size, o = u64(buf, o)
-            if comp:
-                raise SystemExit(f'record: cannot recover compressed ({comp}) chunks')
-            for iop, ibuf, io, iend in records(buf, o, o + size):
-                msg = handle(iop, ibuf, io, iend)
+    def messages():
+        for op, buf, o, end in records(data, 8, len(data)):
+            if op == 0x06:
+                _, o = u64(buf, o)
+                _, o = u64(buf, o)
+                _, o = u64(buf, o)
+                _, o = u32(buf, o)
+                comp, o = string(buf, o)
+                size, o = u64(buf, o)
+                if comp:
+                    raise SystemExit(f'record: cannot recover compressed ({comp}) chunks')
+                for iop, ibuf, io, iend in records(buf, o, o + size):
+                    msg = handle(iop, ibuf, io, iend)
+                    if msg:
+                        yield msg
+            else:
+                msg = handle(op, buf, o, end)
                 if msg:
                     yield msg
-        else:
-            msg = handle(op, buf, o, end)
-            if msg:
-                yield msg
+
+    try:
+        yield from messages()
+    except (struct.error, UnicodeDecodeError, ValueError):
+        return                        # a corrupt record: stop at the last good one
 
 
 def recover(path: Path) -> int:

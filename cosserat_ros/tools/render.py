@@ -64,7 +64,10 @@ def _decode_energy(raw: bytes) -> Tuple[float, dict]:
 
 def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str = ''):
     """Raw mesh and energy messages of a rosbag2 directory, in recording order, and the
-    obstacle marker arrays as (sim time [s], raw)."""
+    obstacle marker arrays as (the index of the first mesh recorded after it, raw): a
+    mesh is drawn with the last array recorded before it. By recording order, not by
+    time: a bag spanning a ``~/reset`` has the node's times twice (``record`` keeps its
+    log times going forward, the messages keep their stamps)."""
     from rosbags.highlevel import AnyReader
     meshes, energies, obstacles = [], [], []
     with AnyReader([Path(path)]) as reader:
@@ -74,7 +77,7 @@ def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str
             raise SystemExit(f'render: {path} has no {mesh_topic} messages')
         for conn, t, raw in reader.messages(connections=conns):
             if conn.topic == obstacle_topic:
-                obstacles.append((t * 1e-9, bytes(raw)))
+                obstacles.append((len(meshes), bytes(raw)))
             else:
                 (meshes if conn.topic == mesh_topic else energies).append(bytes(raw))
     return meshes, energies, obstacles
@@ -200,11 +203,14 @@ def render_frame(ax, t, tris, cols, centre, radius, obstacles=()):
 def energy_plot(energies, path: Path):
     data = [_decode_energy(r) for r in energies]
     fig, ax = plt.subplots(figsize=(7, 4))
-    t = np.array([d[0] for d in data])
+    t = np.array([d[0] for d in data], dtype=float)
+    # a reset starts the time again: each run its own line, not one drawn back over it
+    cut = np.flatnonzero(np.diff(t) < 0) + 1
     for key in ENERGY_KEYS:
         vals = [d[1].get(key) for d in data]
         if all(v is not None for v in vals) and vals:
-            ax.plot(t, vals, label=key)
+            ax.plot(np.insert(t, cut, np.nan), np.insert(np.array(vals, dtype=float), cut,
+                                                         np.nan), label=key)
     ax.set_xlabel('simulation time [s]')
     ax.set_ylabel('energy [J]')
     ax.set_title('Cloth energies')
@@ -218,7 +224,8 @@ def energy_plot(energies, path: Path):
 def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
            frames: int = 60, obstacles=()) -> List[Path]:
     """Pictures, animation and energy plot of the mesh messages (module docstring);
-    ``obstacles``: (sim time [s], raw ~/obstacle_markers) in time order."""
+    ``obstacles``: (index of the first mesh it applies to, raw ~/obstacle_markers) in
+    recording order (:func:`read_bag`)."""
     out.mkdir(parents=True, exist_ok=True)
     if not meshes:
         raise SystemExit('render: no mesh messages to draw')
@@ -234,12 +241,12 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
         if i not in decoded:
             decoded[i] = _decode_mesh(meshes[i])
     centre, radius = _limits([decoded[i] for i in decoded])
-    stamps = [t for t, _ in obstacles]
+    starts = [i for i, _ in obstacles]
     shapes: dict = {}
 
-    def at(t):                    # the obstacles of the last marker array up to time t
-        k = int(np.searchsorted(stamps, t + 1e-9, side='right')) - 1
-        if k < 0 and stamps:
+    def at(i):                    # the obstacles of the last marker array before mesh i
+        k = int(np.searchsorted(starts, i, side='right')) - 1
+        if k < 0 and starts:
             k = 0                 # before the first (1 Hz) array: the first one
         if k < 0:
             return []
@@ -249,8 +256,10 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     for i in chosen:
         fig = plt.figure(figsize=(6, 6))
         ax = fig.add_subplot(projection='3d')
-        render_frame(ax, *decoded[i], centre, radius, at(decoded[i][0]))
+        render_frame(ax, *decoded[i], centre, radius, at(i))
         p = out / f'cloth_{decoded[i][0]:.3f}s.png'
+        if p in written:          # the same time again, after a reset: the index too
+            p = out / f'cloth_{i}_{decoded[i][0]:.3f}s.png'
         fig.savefig(p, dpi=100)
         plt.close(fig)
         written.append(p)
@@ -259,7 +268,7 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     ax = fig.add_subplot(projection='3d')
     seq = [decoded[i] for i in pick]
     anim = FuncAnimation(fig, lambda k: render_frame(ax, *seq[k], centre, radius,
-                                                     at(seq[k][0])), frames=len(seq))
+                                                     at(pick[k])), frames=len(seq))
     gif = out / 'cloth.gif'
     anim.save(gif, writer=PillowWriter(fps=12), dpi=70)
     written.append(gif)
