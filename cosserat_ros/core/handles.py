@@ -33,7 +33,7 @@ import numpy as np
 from .contact import rotation_matrix
 from .obstacles import _quaternion, _vec, id_key
 
-__all__ = ['HandleSet', 'MAX_TURN']
+__all__ = ['HandleSet', 'MAX_TURN', 'turn_angle']
 
 #: the most a handle turns within one compiled call [rad] (the chord of a turning offset
 #: stays within MAX_TURN^2 / 8 of the arc, relative)
@@ -53,7 +53,9 @@ def _slerp(q0, q1, s):
     return (math.sin((1 - s) * a) * q0 + math.sin(s * a) * q1) / math.sin(a)
 
 
-def _angle(q0, q1):
+def turn_angle(q0, q1) -> float:
+    """The angle [rad] of the turn between unit quaternions q0 and q1 (x, y, z, w), in
+    [0, pi] (q and -q are the same turn)."""
     return 2.0 * math.acos(min(1.0, abs(float(np.dot(q0, q1)))))
 
 
@@ -175,7 +177,7 @@ class HandleSet:
             t0, T, p0, q0, p1, q1 = h.motion
             left = max(1, int(math.ceil((t0 + T - t) / dt - 1e-9)))
             k = min(k, left)
-            turn = _angle(q0, q1) / T * dt                       # per step
+            turn = turn_angle(q0, q1) / T * dt                       # per step
             if turn > 0:
                 k = min(k, max(1, int(MAX_TURN / turn)))
         return max(1, k)

@@ -69,6 +69,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..core import warmup
 from ..core.air import Air
 from ..core.contact import mesh_distance_field
+from ..core.handles import turn_angle
 from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
                               steps_tiled)
@@ -463,8 +464,7 @@ class ClothNode(Node):
                 duration = min(max(now - h['received'], self.period), 1.0)
             if h['id'] is not None and h['id'] in self.sim.handles:
                 d = self.sim.handles[h['id']]
-                q0 = np.asarray(d['orientation'])
-                theta = 2.0 * math.acos(min(1.0, abs(float(np.dot(q0, q)))))
+                theta = turn_angle(np.asarray(d['orientation']), q)
                 speed = (float(np.linalg.norm(p - np.asarray(d['position'])))
                          + theta * h['radius']) / duration
                 if speed > self._max_handle_speed:
