@@ -318,14 +318,10 @@ class ImplicitSolver:
                 fr = np.broadcast_to(c[:, :, None, None, None], (nf, 3, 3, k, k))
                 fc = np.broadcast_to(c[:, None, :, None, None], (nf, 3, 3, k, k))
                 vr = np.broadcast_to(vert[:, None, None], (n, k, k))
-                r_v = [fr.ravel(), vr.ravel()]
-                c_v = [fc.ravel(), vr.ravel()]
                 rows = [(k * fr + a[:, None]).ravel(), (k * vr + a[:, None]).ravel()]
                 cols = [(k * fc + a[None, :]).ravel(), (k * vr + a[None, :]).ravel()]
                 if plate:
                     pl = self._plate()
-                    r_v.append(np.repeat(pl.row, k))
-                    c_v.append(np.repeat(pl.col, k))
                     rows.append((k * pl.row[:, None] + a).ravel())
                     cols.append((k * pl.col[:, None] + a).ravel())
                 rows, cols = np.concatenate(rows), np.concatenate(cols)
@@ -335,8 +331,8 @@ class ImplicitSolver:
                 indices = (uniq % size).astype(np.int32)
                 indptr = np.searchsorted(uniq // size, np.arange(size + 1)).astype(np.int32)
                 mats.append((size, inv, len(uniq), indices, indptr))
-                rv.append(np.concatenate(r_v))
-                cv.append(np.concatenate(c_v))
+                rv.append(rows // k)                # each entry's row and column vertex
+                cv.append(cols // k)
             self._csc[form] = (mats, rv, cv)
         return self._csc[form]
 
