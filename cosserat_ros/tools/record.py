@@ -11,12 +11,11 @@ the ``mcap`` libraries open the result.
 
 Log times are simulation time, as ``ros2 bag record --use-sim-time`` gives: the recorder
 follows ``/clock`` (the node publishes it before the state of the same instant, so a mesh
-is logged at its header stamp, until a reset) and the bag plays back on its own clock. When ``/clock``
-goes back (``~/reset`` restarts the node at t = 0) the log times continue from where they
-were, so that the bag still plays in the order it was recorded; the messages' own
-stamps keep the node's time. ``--wall-time``
-logs receive times instead; without a ``/clock`` publisher the recorder says so and logs
-wall time.
+is logged at its header stamp, until a reset) and the bag plays back on its own clock.
+When ``/clock`` goes back (``~/reset`` restarts the node at t = 0) the log times continue
+from where they were, so that the bag still plays in the order it was recorded; the
+messages' own stamps keep the node's time. ``--wall-time`` logs receive times instead;
+without a ``/clock`` publisher the recorder says so and logs wall time.
 
 Topics: every requested topic is waited for up to ``--wait`` seconds; one still missing
 then is a warning naming it, and it is recorded from when it appears (the graph is looked
