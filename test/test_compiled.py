@@ -62,7 +62,7 @@ else:
                        dt=1e-5, check_dt=False)
     energy.report(s.model, s.coefficients, s.state, s.control, s.dt, s._scratch,
                   s.state.x * 0)
-    contact_range(np.int64(0), np.int64(0), s.state.x, s.state.v, s.control,
+    contact_range(np.int64(0), np.int64(0), s.state.x, s.state.v, s.state.x * 0, s.control,
                   s.coefficients, s.dt)
     m, v = s.model, s.solver
     if tiled:

@@ -28,6 +28,37 @@ __all__ = ['closest_points', 'closest_points_brute', 'triangle_barycentric',
 
 
 @kernel(inline='always')
+def _segment(p0, p1, p2, a, b):
+    """(squared distance, t) from point p to segment a + t (b - a), t in [0, 1] (0 for
+    a segment of length 0)."""
+    e0 = b[0] - a[0]
+    e1 = b[1] - a[1]
+    e2 = b[2] - a[2]
+    ee = e0 * e0 + e1 * e1 + e2 * e2
+    t = 0.0
+    if ee > 0.0:
+        t = min(1.0, max(0.0, ((p0 - a[0]) * e0 + (p1 - a[1]) * e1 + (p2 - a[2]) * e2) / ee))
+    q0 = p0 - a[0] - t * e0
+    q1 = p1 - a[1] - t * e1
+    q2 = p2 - a[2] - t * e2
+    return q0 * q0 + q1 * q1 + q2 * q2, t
+
+
+@kernel(inline='always')
+def _degenerate(p0, p1, p2, a, b, c):
+    """:func:`triangle_barycentric` of a triangle with no area: the closest point of its
+    three edges."""
+    dab, tab = _segment(p0, p1, p2, a, b)
+    dbc, tbc = _segment(p0, p1, p2, b, c)
+    dca, tca = _segment(p0, p1, p2, c, a)
+    if dab <= dbc and dab <= dca:
+        return 1.0 - tab, tab, 0.0
+    if dbc <= dca:
+        return 0.0, 1.0 - tbc, tbc
+    return tca, 0.0, 1.0 - tca
+
+
+@kernel(inline='always')
 def triangle_barycentric(p0, p1, p2, a, b, c):
     """Barycentric weights (u, v, w) of the point of triangle (a, b, c) closest to point
     (p0, p1, p2): Ericson, Real-Time Collision Detection, 5.1.5 (the Voronoi regions of
@@ -53,7 +84,7 @@ def triangle_barycentric(p0, p1, p2, a, b, c):
     if d3 >= 0.0 and d4 <= d3:
         return 0.0, 1.0, 0.0
     vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 - d3 > 0.0:
         v = d1 / (d1 - d3)
         return 1.0 - v, v, 0.0
     cp0 = p0 - c[0]
@@ -64,13 +95,17 @@ def triangle_barycentric(p0, p1, p2, a, b, c):
     if d6 >= 0.0 and d5 <= d6:
         return 0.0, 0.0, 1.0
     vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 - d6 > 0.0:
         w = d2 / (d2 - d6)
         return 1.0 - w, 0.0, w
     va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0 and (d4 - d3) + (d5 - d6) > 0.0:
         w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
         return 0.0, 1.0 - w, w
+    if not va + vb + vc > 0.0:
+        # no area (two corners at one point: an edge of length 0 met the tests above
+        # with 0 / 0): the nearer end of the segment the corners span
+        return _degenerate(p0, p1, p2, a, b, c)
     den = 1.0 / (va + vb + vc)
     v = vb * den
     w = vc * den

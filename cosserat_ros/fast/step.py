@@ -159,7 +159,7 @@ def _update_chunk(c, size, vf_ptr, vf_row, tr_ptr, tr_slot, frow, contrib, x, v,
     if control.obstacles.shape[0] > 0:
         # int64 bounds: the signature the cold start's second process compiles
         w, d = contact_range(nb.int64(c * size), nb.int64(min(x.shape[0], (c + 1) * size)),
-                             x, v, control, coeff, dt)
+                             x, v, force, control, coeff, dt)
         work += w
         diss += d
     part[c, 0] = work
@@ -372,7 +372,7 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contr
         d += dd
         b += db
     if control.obstacles.shape[0] > 0:
-        dw, dd = contact_list(gl_vert, q0, q1, x, v, control, coeff, dt)
+        dw, dd = contact_list(gl_vert, q0, q1, x, v, force, control, coeff, dt)
         w += dw
         d += dd
     return w, d, b

@@ -61,7 +61,7 @@ def advance_all(x, v, force, control, coeff, dt, vmax2, part, acc):
             b += db
         if control.obstacles.shape[0] > 0:
             dw, dd = contact_range(nb.int64(c * size), nb.int64(min(n, (c + 1) * size)), x,
-                                   v, control, coeff, dt)
+                                   v, force, control, coeff, dt)
             w += dw
             d += dd
         part[c, 0] = w

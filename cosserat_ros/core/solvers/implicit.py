@@ -259,8 +259,11 @@ class ImplicitSolver:
         """Drop what the solver carries from the last step to the next, the predictor's
         acceleration: the state was set from outside (a reset, ``set_positions``,
         ``set_velocities``, a divergence's restore), so the next step starts as from a
-        fresh simulator (the linearised solver's step depends on its start)."""
+        fresh simulator (the linearised solver's step depends on its start), and the
+        contacts' modes and normal forces (a vertex that slid would slide on with the
+        last step's friction)."""
         self._accel[:] = 0.0
+        self._contacts.clear()
 
     @property
     def linearized(self) -> bool:
@@ -540,7 +543,12 @@ class ImplicitSolver:
         if con is not None:
             held, w, d = con.finish(xn, xk, react, control, dt)
             rest = np.flatnonzero(con.mode == FREE)
-            w2, d2 = contact_list(rest, 0, len(rest), x, v, control, coeff, dt)
+            # the internal force with which the explicit update (Eq. 29) would take vn to
+            # vk: the correction's ledger takes the step's force from it
+            # (``update.contact_vertex``)
+            feq = (mass * (vk - vn * (1.0 - dt * damp / mass)) / dt - control.f_applied
+                   - mass * g)
+            w2, d2 = contact_list(rest, 0, len(rest), x, v, feq, control, coeff, dt)
             push_list(held, x, control.obstacles, control.sdf_meta, control.sdf_data, th)
             work += w + w2
             diss += d + d2

@@ -150,6 +150,13 @@ class ObstacleConstraints:
         self._n = np.zeros((n, 3))
         self._vo = np.zeros((n, 3))
 
+    def clear(self) -> None:
+        """Forget what carries over from the last step (the modes, the normal forces):
+        the next step starts as without a last one."""
+        self.mode[:] = FREE
+        self.fn[:] = 0.0
+        self.friction[:] = 0.0
+
     # ------------------------------------------------------------------ the set
     def _find(self, xn, pred, free, control, dt):
         """Rows etc. of the vertices whose linearised gap at ``pred`` is negative:

@@ -39,7 +39,7 @@ import math
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import ALL, near_mask, push_out, resolve
+from ..contact import ALL, C_FORCE, C_GAP, C_ID, FAR, near_mask, push_out, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -111,13 +111,20 @@ def advance_vertex(i, f0, f1, f2, x, v, control, coeff, dt, vmax2):
 
 
 @kernel(inline='always')
-def contact_vertex(i, x, v, control, coeff, dt, mask, vmax2):
-    """The contact response of vertex i after :func:`advance_vertex` moved it (see the
-    module docstring), against the obstacles ``mask`` keeps (:func:`..contact.near_mask`,
-    valid while the vertex ends slower than sqrt(vmax2)); returns (external work [J],
-    dissipation [J]) of the contact."""
+def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2):
+    """The contact response of vertex i after :func:`advance_vertex` moved it with internal
+    force ``force[i]`` (see the module docstring), against the obstacles ``mask`` keeps
+    (:func:`..contact.near_mask`, valid while the vertex ends slower than sqrt(vmax2));
+    returns (external work [J], dissipation [J]) of the contact."""
     i = nb.uint64(i)
     if control.pinned[i]:
+        # a pinned or held vertex moves as prescribed, in no contact: its row is cleared
+        # (a vertex pinned while resting on an obstacle kept reporting its weight there)
+        control.contact[i, C_FORCE] = 0.0
+        control.contact[i, C_FORCE + 1] = 0.0
+        control.contact[i, C_FORCE + 2] = 0.0
+        control.contact[i, C_ID] = -1.0
+        control.contact[i, C_GAP] = FAR
         return 0.0, 0.0
     ob = control.obstacles
     th = control.contact_params[0]
@@ -127,7 +134,18 @@ def contact_vertex(i, x, v, control, coeff, dt, mask, vmax2):
     x0 = x[i, 0] - dt * v0
     x1 = x[i, 1] - dt * v1
     x2 = x[i, 2] - dt * v2
-    v0, v1, v2, w, d = resolve(i, x0, x1, x2, v0, v1, v2, coeff.mass[i], dt, ob,
+    # the step's force m (v - v_start) / dt, from Eq. 29 (advance_vertex) solved for
+    # v_start: (F - c v) / (1 - c dt / m), F = internal + applied + weight
+    m = coeff.mass[i]
+    c = coeff.damp[i]
+    fa = control.f_applied
+    g = control.gravity
+    den = 1.0 - c * dt / m
+    den = den if den > 0.0 else 1.0
+    fs0 = (force[i, 0] + fa[i, 0] + m * g[0] - c * v0) / den
+    fs1 = (force[i, 1] + fa[i, 1] + m * g[1] - c * v1) / den
+    fs2 = (force[i, 2] + fa[i, 2] + m * g[2] - c * v2) / den
+    v0, v1, v2, w, d = resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob,
                                control.sdf_meta, control.sdf_data, th, control.contact, mask)
     if v0 * v0 + v1 * v1 + v2 * v2 > vmax2:
         mask = ALL
@@ -153,9 +171,10 @@ def _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, i, x, v, dt):
 
 
 @kernel(refcount=False)
-def contact_range(i0, i1, x, v, control, coeff, dt):
-    """:func:`contact_vertex` for vertices i0..i1-1, the obstacles first narrowed to those
-    that may reach them (:func:`..contact.near_mask`); returns (work, dissipation)."""
+def contact_range(i0, i1, x, v, force, control, coeff, dt):
+    """:func:`contact_vertex` for vertices i0..i1-1 (internal forces ``force``), the
+    obstacles first narrowed to those that may reach them (:func:`..contact.near_mask`);
+    returns (work, dissipation)."""
     inf = math.inf
     lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
     for i in range(i0, i1):
@@ -165,14 +184,14 @@ def contact_range(i0, i1, x, v, control, coeff, dt):
     w = 0.0
     d = 0.0
     for i in range(i0, i1):
-        dw, dd = contact_vertex(i, x, v, control, coeff, dt, mask, vmax2)
+        dw, dd = contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2)
         w += dw
         d += dd
     return w, d
 
 
 @kernel(refcount=False)
-def contact_list(verts, q0, q1, x, v, control, coeff, dt):
+def contact_list(verts, q0, q1, x, v, force, control, coeff, dt):
     """:func:`contact_range` for vertices ``verts[q0:q1]``."""
     inf = math.inf
     lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
@@ -184,7 +203,7 @@ def contact_list(verts, q0, q1, x, v, control, coeff, dt):
     w = 0.0
     d = 0.0
     for q in range(q0, q1):
-        dw, dd = contact_vertex(verts[q], x, v, control, coeff, dt, mask, vmax2)
+        dw, dd = contact_vertex(verts[q], x, v, force, control, coeff, dt, mask, vmax2)
         w += dw
         d += dd
     return w, d

@@ -71,12 +71,14 @@ def cross(a0, a1, a2, b0, b1, b2):
 def floored_normal(c0, c1, c2, cn):
     """The jet's normal ``c / s(r)`` from ``c = a_1 x a_2`` and ``r = |c|`` = ``cn`` (scalars
     or SIMD vectors; module docstring): (n0, n1, n2, 1/s, gam). Where ``r >= f`` this is
-    ``c / r`` with ``gam = 1``, bit for bit."""
+    ``c / r`` with ``gam = 1``, bit for bit. ``gam = r s / (f r) = s / max(r, f)``, written
+    so: ``r / r`` would be 0 / 0 at ``r = 0`` (tangents parallel, a stencil pinched to a
+    line), where the limit is 1/2 (``max`` from ``min``: the SIMD vectors have only that)."""
     f = JET_AREA_FLOOR
     u = min(cn, f)
     s = cn + (f - u) * (f - u) * (0.5 / f)
     isn = 1.0 / s
-    gam = u * s / (f * cn)
+    gam = s / (cn + (f - u))
     return c0 * isn, c1 * isn, c2 * isn, isn, gam
 
 
