@@ -476,3 +476,19 @@ def test_a_strip_twisted_by_two_handles_touches_itself_without_crossing():
             sim.move_handle(hr, (xr - 0.1 * (k + 1) / K, 0.0, 0.0), q, duration=FRAME)
             sim.move_handle(hl, (xl + 0.1 * (k + 1) / K, 0.0, 0.0), duration=FRAME)
     assert _frames(sim, (K + 15) * FRAME, each) < 1.5 * th
+
+
+def test_the_closest_point_of_a_triangle_without_area_is_finite():
+    """Two corners at one point (a degenerate triangle of a crumpled or scripted cloth):
+    the closest point is the nearest point of its edges, not the 0 / 0 of the edge
+    region's ratio (surface_query.triangle_barycentric), NaN before."""
+    from cosserat_ros.core.surface_query import point_triangle_sq
+    o, c = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    for a, b, cc, want in [(o, o, c, (0.5, 0.0, 0.0)), (o, c, o, (0.5, 0.0, 0.0)),
+                           (c, o, o, (0.5, 0.0, 0.0)), (o, o, o, (0.0, 0.0, 0.0)),
+                           (o, 0.5 * c, c, (0.5, 0.0, 0.0))]:
+        d2, u, v, w = point_triangle_sq(0.5, 1.0, 0.0, a, b, cc)
+        assert u + v + w == pytest.approx(1.0) and min(u, v, w) >= 0.0
+        q = u * a + v * b + w * cc
+        np.testing.assert_allclose(q, want, atol=1e-15)
+        assert d2 == pytest.approx(np.sum((np.array([0.5, 1.0, 0.0]) - q) ** 2))

@@ -274,6 +274,32 @@ def test_the_jet_gradient_is_exact_below_the_area_floor(term):
     _assert_gradient_is_the_central_difference(t, model, coeff, x)
 
 
+@pytest.mark.parametrize('term', ['bending', 'coupling'])
+def test_a_sheet_collapsed_onto_a_line_has_finite_forces(term):
+    """Every stencil's tangents parallel, ``a_1 x a_2 = 0`` exactly (a sheet flattened onto
+    a line, as ``set_positions`` may do): the floored normal's factor gam is s / max(r, f)
+    (jet.floored_normal), finite at r = 0, where r s / (f r) was 0 / 0 and made every
+    force of the stencil NaN. Both the reference gradient and the explicit step's force
+    (the SIMD lanes) stay finite."""
+    from cosserat_ros.core.terms.jet import floored_normal
+    from cosserat_ros.simulator import ClothSimulator
+    assert floored_normal(0.0, 0.0, 0.0, 0.0) == pytest.approx((0, 0, 0, 2 / _floor(), 0.5))
+    t, model = TERMS[term], _model('regular')
+    coeff = model.coefficients(MAT)
+    x = model.mesh.vertices.copy()
+    x[:, 1] = 0.0
+    x[:, 2] = 0.3 * x[:, 0] ** 2
+    assert np.all(np.isfinite(t.gradient(model, coeff, x)))
+    sim = ClothSimulator(model.mesh, MAT, dt=1e-5, check_dt=False)
+    sim.set_positions(x)
+    assert np.all(np.isfinite(sim.internal_forces()))
+
+
+def _floor():
+    from cosserat_ros.core.constants import JET_AREA_FLOOR
+    return JET_AREA_FLOOR
+
+
 def _plate_deflection(n, pattern):
     """A model of the unit square and ``w = a sin(pi x) sin(pi y)`` on it (x, y in [0, 1]),
     and the Kirchhoff plate's energy of w, ``D/2 int (Delta w)^2 = D a^2 pi^4 / 2`` (its
