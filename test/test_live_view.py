@@ -174,3 +174,41 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
         assert topic in c.channels and key in energy[-1], path
     for key in ('CallService!reset', 'CallService!pause'):
         assert panels[key]['serviceName'] in c.services
+
+
+def test_an_entity_the_last_frame_showed_is_deleted_when_it_goes():
+    """The handles' spheres (and the obstacles) are left out of a frame once the last
+    grasp is released (or obstacle removed); a viewer keeps a scene entity until it is
+    replaced or deleted, so that frame carries a deletion of it (by id), and the next
+    frames none."""
+    import numpy as np
+    from cosserat_ros.ros.live_view import LiveView
+    view = LiveView(free_port(), '127.0.0.1', '/t', {})
+    logged = []
+
+    class Sink:                                   # the scene channel, with a watcher
+        def has_sinks(self):
+            return True
+
+        def log(self, msg, log_time):
+            logged.append(msg)
+    try:
+        view.scene = Sink()
+        x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+        faces, colors = np.array([[0, 1, 2]]), np.ones((3, 4), np.float32)
+        ball = [('sphere', {'position': (0, 0, 0), 'orientation': (0, 0, 0, 1),
+                            'radius': 0.1}, None)]
+        view.publish(1, 'world', x, faces, colors, {}, lambda: ball, np.zeros((1, 3)))
+        view.publish(2, 'world', x, faces, colors, {}, lambda: [], np.zeros((0, 3)))
+        view.publish(3, 'world', x, faces, colors, {}, lambda: [], None)
+        schema = view._fg.messages.SceneUpdate.get_schema()
+        SceneUpdate = protobuf_class({'schema': base64.b64encode(schema.data),
+                                      'schemaName': schema.name})
+        got = [SceneUpdate.FromString(msg.encode()) for msg in logged]
+        d = [[(e.id, e.type) for e in u.deletions] for u in got]
+        match = int(view._fg.messages.SceneEntityDeletionType.MatchingId)
+        assert d == [[], [('handles', match), ('obstacles', match)], []], d
+        assert [sorted(e.id for e in u.entities) for u in got] == [
+            ['cloth', 'handles', 'obstacles'], ['cloth'], ['cloth']]
+    finally:
+        view.close()

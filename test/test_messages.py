@@ -95,6 +95,24 @@ def test_handles_are_their_own_sphere_list():
     assert m.header.frame_id == 'w' and m.ns == 'cloth'
 
 
+def test_markers_the_last_message_drew_are_deleted():
+    """A DELETE marker (namespace and id, no points) for each id in ``delete``, after the
+    drawn ones; optional_markers says which ids a message draws."""
+    from cosserat_ros.ros.conversions import optional_markers
+    mesh = grid_mesh(3, 3)
+    col = colormap(np.zeros(mesh.n_vertices), 0, 1)
+    before = optional_markers(mesh.edges, np.array([0, 3]), np.zeros((1, 3)))
+    now = optional_markers(None, np.array([], int), None)
+    assert before == {1, 2, 3} and now == frozenset()
+    assert optional_markers(mesh.edges, None, np.zeros((0, 3))) == {1}
+    msg = deserialize_message(mesh_marker_array(mesh.vertices, mesh.faces, col, 0, 'w',
+                                                delete=sorted(before - now)), MarkerArray)
+    assert [m.id for m in msg.markers] == [0, 1, 2, 3]
+    assert msg.markers[0].action == Marker.ADD
+    for m in msg.markers[1:]:
+        assert m.action == Marker.DELETE and m.ns == 'cloth' and not m.points
+
+
 def test_colormap_range_and_degenerate_span():
     c = colormap(np.array([-1.0, 0.0, 0.5, 1.0, 2.0, np.nan]), 0.0, 1.0, alpha=0.5)
     assert c.dtype == np.float32 and c.shape == (6, 4)

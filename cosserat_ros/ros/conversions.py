@@ -23,11 +23,13 @@ import numpy as np
 __all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'POINT_FIELDS',
            'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
-           'PINS_ID', 'HANDLES_ID']
+           'PINS_ID', 'HANDLES_ID', 'optional_markers']
 
 TRIANGLE_LIST = 11
 LINE_LIST = 5
 SPHERE_LIST = 7
+#: visualization_msgs/Marker action DELETE
+DELETE = 2
 MARKER_NAMESPACE = 'cloth'
 MESH_ID, WIREFRAME_ID, PINS_ID, HANDLES_ID = 0, 1, 2, 3
 
@@ -79,12 +81,13 @@ def _header(w: CdrWriter, sec: int, nanosec: int, frame_id: str):
 
 
 def _marker(w: CdrWriter, sec: int, nanosec: int, frame_id: str, mid: int, mtype: int,
-            scale: float, color, points: np.ndarray, colors: Optional[np.ndarray]):
+            scale: float, color, points: np.ndarray, colors: Optional[np.ndarray],
+            action: int = 0):
     _header(w, sec, nanosec, frame_id)
     w.string(MARKER_NAMESPACE)
     w.prim('i', mid)
     w.prim('i', mtype)
-    w.prim('i', 0)                                   # ADD
+    w.prim('i', action)                              # ADD (0) or DELETE (2)
     w.prim('d', 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)    # pose: origin, identity
     w.prim('d', scale, scale, scale)
     w.prim('f', *color)
@@ -114,7 +117,7 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
                       wire_color=(0.1, 0.1, 0.1, 1.0),
                       pin_color=(0.9, 0.2, 0.1, 1.0),
                       handles: Optional[np.ndarray] = None,
-                      handle_color=(0.1, 0.8, 0.3, 1.0)) -> bytes:
+                      handle_color=(0.1, 0.8, 0.3, 1.0), delete=()) -> bytes:
     """Serialised ``visualization_msgs/MarkerArray`` of the cloth.
 
     Parameters
@@ -128,6 +131,10 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
         (the vertices grasp handles hold are pinned too).
     handles : (h, 3) float64 or None; the grasp handles' origins as a SPHERE_LIST (id 3,
         three times the pin size) when non-empty.
+    delete : marker ids (of 1, 2, 3) to remove, each as a DELETE marker after the others:
+        one that the last message drew and this one does not (markers live until
+        replaced or deleted, so a released grasp's spheres would otherwise stay on
+        screen; :func:`optional_markers` says which a message draws).
 
     Marker 0 is a TRIANGLE_LIST with one point and one colour per triangle corner, unit
     scale and an opaque base colour (RViz needs a non-zero ``color.a`` even with per-vertex
@@ -137,7 +144,7 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     corners = faces.reshape(-1)
     # np.take, not positions[corners]: numpy's fancy indexing of rows is much slower
     markers = (1 + (edges is not None) + (pinned is not None and len(pinned) > 0)
-               + (handles is not None and len(handles) > 0))
+               + (handles is not None and len(handles) > 0) + len(delete))
     w = CdrWriter()
     w.prim('I', markers)
     _marker(w, sec, nanosec, frame_id, MESH_ID, TRIANGLE_LIST, 1.0, (1.0, 1.0, 1.0, 1.0),
@@ -151,7 +158,18 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     if handles is not None and len(handles) > 0:
         _marker(w, sec, nanosec, frame_id, HANDLES_ID, SPHERE_LIST, 3 * pin_size,
                 handle_color, np.ascontiguousarray(handles, dtype=np.float64), None)
+    for mid in delete:
+        _marker(w, sec, nanosec, frame_id, int(mid), SPHERE_LIST, 1.0, (0.0, 0.0, 0.0, 0.0),
+                np.zeros((0, 3)), None, action=DELETE)
     return w.bytes()
+
+
+def optional_markers(edges=None, pinned=None, handles=None) -> frozenset:
+    """The ids of the optional markers :func:`mesh_marker_array` draws with these
+    arguments (1 wireframe, 2 pins, 3 handles)."""
+    return frozenset(k for k, a in ((WIREFRAME_ID, edges), (PINS_ID, pinned),
+                                    (HANDLES_ID, handles))
+                     if a is not None and (k == WIREFRAME_ID or len(a) > 0))
 
 
 #: sensor_msgs/PointField datatype FLOAT32

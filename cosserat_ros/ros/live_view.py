@@ -81,6 +81,7 @@ class LiveView:
         self._handlers = handlers
         self._requests: 'queue.Queue' = queue.Queue(maxsize=MAX_PENDING)
         self._meshes: dict = {}
+        self._shown: set = set()        # the scene entities the last frame showed
         self.context = foxglove.Context()
         def schema(name):
             kind, request = SERVICE_TYPES[name]
@@ -178,10 +179,13 @@ class LiveView:
             indices=faces.reshape(-1).tolist(), color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0))
         entities = [m.SceneEntity(timestamp=ts, frame_id=frame_id, id='cloth',
                                   triangles=[cloth])]
+        shown = {'cloth'}
         listed = obstacles() if obstacles is not None else []
         if listed:
             entities.append(self._obstacles(m, ts, frame_id, listed))
+            shown.add('obstacles')
         if handles is not None and len(handles):
+            shown.add('handles')
             green = m.Color(r=0.1, g=0.8, b=0.3, a=1.0)
             entities.append(m.SceneEntity(timestamp=ts, frame_id=frame_id, id='handles',
                                           spheres=[m.SpherePrimitive(
@@ -189,7 +193,13 @@ class LiveView:
                                               size=m.Vector3(x=0.03, y=0.03, z=0.03),
                                               color=green)
                                               for a, b, c in np.asarray(handles).tolist()]))
-        self.scene.log(m.SceneUpdate(entities=entities), log_time=int(stamp_ns))
+        # an entity the last frame showed and this one does not (the last obstacle
+        # removed, the last grasp released) is deleted: a viewer keeps it until then
+        gone = [m.SceneEntityDeletion(timestamp=ts, type=m.SceneEntityDeletionType.MatchingId,
+                                      id=i) for i in sorted(self._shown - shown)]
+        self._shown = shown
+        self.scene.log(m.SceneUpdate(deletions=gone, entities=entities),
+                       log_time=int(stamp_ns))
 
     def _mesh_lists(self, m, verts, faces):
         """A mesh obstacle's points and indices as the primitive takes them, built once
