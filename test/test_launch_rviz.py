@@ -80,3 +80,41 @@ def test_rviz_config_shows_what_the_node_publishes(tmp_path):
         assert cls == 'rviz_default_plugins/MarkerArray'
         assert published[topic] == ['visualization_msgs/msg/MarkerArray']
     assert {'/cloth_node/mesh', '/cloth_node/obstacle_markers'} <= set(shown)
+
+
+#: the rosdep keys of the Python libraries the package imports (llvmlite comes with numba;
+#: mujoco, foxglove and mcap are the optional extras' (setup.py), not run dependencies)
+PYTHON_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'scipy': 'python3-scipy',
+               'trimesh': 'python3-trimesh-pip', 'rosbags': 'python3-rosbags-pip',
+               'matplotlib': 'python3-matplotlib', 'mpl_toolkits': 'python3-matplotlib',
+               'yaml': 'python3-yaml'}
+EXTRAS = {'llvmlite', 'mujoco', 'foxglove', 'mcap', 'mcap_ros2', 'google', 'websockets'}
+
+
+def test_every_package_the_code_imports_or_launches_is_a_run_dependency():
+    """A ROS install resolves package.xml with rosdep: each ROS package the installed code
+    imports (rclpy, the message and service packages, rcl_interfaces for the parameter
+    types, ament_index_python) and each Python library must be an exec_depend, and so
+    must rviz2, which the launch files start with rviz:=true."""
+    import sys
+    root = ET.parse(os.path.join(SHARE, 'package.xml')).getroot()
+    deps = {e.text for e in root.iter() if e.tag in ('exec_depend', 'depend')}
+    code = os.path.dirname(os.path.dirname(os.path.abspath(
+        __import__('cosserat_ros').__file__)))
+    imported = set()
+    for dirpath, _, files in os.walk(os.path.join(code, 'cosserat_ros')):
+        for f in files:
+            if f.endswith('.py'):
+                tree = ast.parse(open(os.path.join(dirpath, f)).read())
+                for n in ast.walk(tree):
+                    if isinstance(n, ast.Import):
+                        imported |= {a.name.split('.')[0] for a in n.names}
+                    elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+                        imported.add(n.module.split('.')[0])
+    third = imported - set(sys.stdlib_module_names) - {'cosserat_ros'} - EXTRAS
+    assert {'rclpy', 'numpy', 'rcl_interfaces'} <= third                # the walk works
+    missing = {PYTHON_KEYS.get(m, m) for m in third} - deps
+    assert not missing, f'imported but not in package.xml: {sorted(missing)}'
+    for name in ('cloth.launch.py', 'cloth.launch.xml'):
+        if 'rviz2' in open(os.path.join(SHARE, 'launch', name)).read():
+            assert 'rviz2' in deps, f'launch/{name} starts rviz2'

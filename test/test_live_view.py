@@ -172,8 +172,12 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     for path in panels['Plot!energy']['paths']:
         topic, key = path['value'].rsplit('.', 1)
         assert topic in c.channels and key in energy[-1], path
-    for key in ('CallService!reset', 'CallService!pause'):
+    for key in ('CallService!reset', 'CallService!pause', 'CallService!resume'):
         assert panels[key]['serviceName'] in c.services
+    # pause and resume: SetBool requests the node accepts (data true / false)
+    assert [json.loads(panels[f'CallService!{k}']['requestPayload'])
+            for k in ('pause', 'resume')] == [{'data': True}, {'data': False}]
+    assert json.dumps(layout['layout']).count('CallService!') == 3     # all three shown
 
 
 def test_an_entity_the_last_frame_showed_is_deleted_when_it_goes():
