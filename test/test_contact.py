@@ -8,7 +8,8 @@ import pytest
 import trimesh
 
 from cosserat_ros.core import contact as C
-from cosserat_ros.core.obstacles import ObstacleSet, _plane_quaternion
+from cosserat_ros.core.obstacles import (FIELD_MARGIN_CELLS, FIELD_SPACING, ObstacleSet,
+                                         _plane_quaternion)
 from cosserat_ros.mesh import grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
 
@@ -137,7 +138,9 @@ def test_plane_distance_is_the_height_along_its_normal():
 def test_mesh_field_matches_the_shape_it_samples():
     """A closed box mesh's sampled field against the box's exact distance: exact where
     the distance is linear over a cell (trilinear reproduces linear functions), within a
-    cell's spacing elsewhere near the surface, the right sign everywhere."""
+    cell's spacing elsewhere near the surface, the right sign everywhere; deeper inside
+    the distance transform's depth, within a sample spacing, and outside beyond the
+    band the band's width."""
     box = trimesh.creation.box(extents=(0.4, 0.3, 0.2))
     obs = ObstacleSet()
     obs.add('mesh', vertices=box.vertices, faces=box.faces, spacing=0.01)
@@ -159,7 +162,11 @@ def test_mesh_field_matches_the_shape_it_samples():
     np.testing.assert_allclose(got[near, 0], ref[near], rtol=0, atol=0.01)
     far = np.abs(ref) > 0.04 + 0.01 * math.sqrt(3)
     assert np.all(np.sign(got[far, 0]) == np.sign(ref[far]))
-    assert np.all(np.abs(got[:, 0]) <= 0.04 + 1e-12)
+    out = ref > 0
+    assert np.all(got[out, 0] <= 0.04 + 1e-12)
+    deep = ref < -0.04 - 0.01 * math.sqrt(3)
+    assert deep.sum() > 300
+    np.testing.assert_allclose(got[deep, 0], ref[deep], rtol=0, atol=0.01 + 1e-9)
 
 
 # ---------------------------------------------------------------- physics
@@ -472,6 +479,27 @@ def test_push_out_leaves_a_vertex_outside_both_layers_of_a_corner():
         q = np.array(C.push_out(*p, ob, meta, data, th, mask))
         d = [_distances(obs, k, q[None])[0, 0] for k in range(2)]
         assert min(d) >= th * (1.0 - 1e-3), d           # 2 um (32 pushes: 0.1 um)
+
+
+def test_a_point_deep_inside_a_mesh_obstacle_leaves_by_the_nearest_face():
+    """Deeper than the field's exact band (4 cells) a mesh's depth comes from the distance
+    transform: the normal points to the nearest face and push_out takes the point out
+    there. A constant depth had no gradient: the normal was the mesh's +z and the point,
+    5 cm from the +x face of a 0.6 m box, was pushed 0.5 m through it to the top."""
+    obs = ObstacleSet()
+    box = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
+    obs.add('mesh', vertices=box.vertices, faces=box.faces, center=(0, 0, 0))
+    ob, meta, data = obs.table, obs.meta, obs.data
+    th = 0.002
+    for p, face in [((0.25, 0.0, -0.2), 0), ((0.0, -0.23, 0.05), 1), ((0.02, 0.0, -0.24), 2)]:
+        want = np.sign(p[face]) * np.eye(3)[face]
+        d, *n = _distances(obs, 0, np.array([p]))[0]
+        depth = 0.3 - abs(p[face])
+        assert depth > FIELD_MARGIN_CELLS * FIELD_SPACING              # past the band
+        assert -d == pytest.approx(depth, abs=0.011)           # within a sample spacing
+        assert np.dot(n, want) > 0.9, (p, n)
+        q = np.array(C.push_out(*p, ob, meta, data, th, C.ALL))
+        assert abs(q[face]) >= 0.3 + th - 1e-9 and np.linalg.norm(q - p) < depth + 0.02, q
 
 
 def test_forget_clears_the_implicit_contacts_that_carry_over():

@@ -629,8 +629,13 @@ def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
     (contact needs only the layer near the surface); the sign from the parity of each
     grid column's crossings with the surface. Between samples trilinear interpolation:
     exact where the distance is linear over a cell (near a face), within ``spacing^2 /
-    (8 R)`` of a surface of curvature radius R. Cost: each triangle visits the samples
+    (8 R)`` of a surface of curvature radius R. Inside, deeper than ``margin``, the depth
+    is the Euclidean distance transform's (to the nearest sample outside, to within a
+    sample spacing), at least ``margin``: a vertex found that deep (a mesh posed onto the
+    cloth) is pushed out by the way nearest the surface, where a constant depth had no
+    gradient and its normal was the mesh's +z. Cost: each triangle visits the samples
     within ``margin`` of its bounding box."""
+    from scipy.ndimage import distance_transform_edt
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     lo = v.min(0) - margin
@@ -640,4 +645,8 @@ def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
     _band_distances(v, f, lo, shape, float(spacing), float(margin), dist)
     inside = np.zeros(len(dist), dtype=np.bool_)
     _inside(v, f, lo, shape, float(spacing), inside)
+    deep = inside & (dist >= margin)
+    if deep.any():
+        depth = distance_transform_edt(inside.reshape(tuple(shape))).reshape(-1) * spacing
+        dist[deep] = np.maximum(depth[deep], margin)
     return lo, shape, np.where(inside, -dist, dist)
