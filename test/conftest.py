@@ -1,5 +1,6 @@
-"""Test-session set-up: every run gets its own ROS domain and keeps discovery on localhost,
-so parallel runs (and other ROS graphs on the machine) never see each other.
+"""Test-session set-up: every run gets its own ROS domain (one no other run on the machine
+holds) and keeps discovery on localhost, so parallel runs (and other ROS graphs on the
+machine) never see each other.
 
 On a cold compile cache most of the suite's time is numba compiling the step's kernels,
 one core at a time. The session therefore starts ``precompile.py`` in a second process
@@ -10,7 +11,30 @@ import os
 import subprocess
 import sys
 
-os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
+
+def _own_domain() -> int:
+    """A ROS domain no other test run on this machine holds: the first of 1..100 (from
+    one the process id picks) whose lock file this session can lock; the lock is held
+    until the session's process ends. (An exported ROS_DOMAIN_ID is not taken: it may be
+    a live graph's.)"""
+    import fcntl
+    import tempfile
+    for k in range(100):
+        domain = 1 + (os.getpid() + k) % 100
+        fd = os.open(os.path.join(tempfile.gettempdir(),
+                                  f'cosserat_ros_test_domain_{domain}.lock'),
+                     os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        _own_domain.lock = fd                      # held open: the lock lasts the session
+        return domain
+    raise RuntimeError('every ROS domain 1..100 is held by another test run')
+
+
+os.environ['ROS_DOMAIN_ID'] = str(_own_domain())
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
 
@@ -28,6 +52,21 @@ TIMED = ('test_node.py', 'test_node_process.py', 'test_record_render.py',
          'test_live_view.py')
 
 _precompile = None
+
+
+class _Tracked(subprocess.Popen):
+    """subprocess.Popen that remembers its processes, so that the session's end can stop
+    any a failed test left running (a node that outlived its test would stay on this
+    run's ROS domain, and past the run)."""
+
+    started: list = []
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        _Tracked.started.append(self)
+
+
+subprocess.Popen = _Tracked            # the tests' modules call subprocess.Popen / run
 
 
 def pytest_sessionstart(session):
@@ -67,3 +106,11 @@ def pytest_sessionfinish(session, exitstatus):
             _precompile.wait(10)
         except subprocess.TimeoutExpired:
             _precompile.kill()
+    left = [p for p in _Tracked.started if p is not _precompile and p.poll() is None]
+    for p in left:
+        p.kill()
+        p.wait(10)
+    if left:
+        print(f'\nconftest: killed {len(left)} process(es) a test left running: '
+              + ', '.join(str(p.args[0] if isinstance(p.args, (list, tuple)) else p.args)
+                          for p in left))

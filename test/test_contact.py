@@ -502,6 +502,26 @@ def test_a_point_deep_inside_a_mesh_obstacle_leaves_by_the_nearest_face():
         assert abs(q[face]) >= 0.3 + th - 1e-9 and np.linalg.norm(q - p) < depth + 0.02, q
 
 
+@SOLVERS
+def test_contact_state_reports_the_depth_and_count_of_the_contacts(solver):
+    """``contact_state()``: a flat cloth started 0.5 mm inside the ground's 2 mm layer
+    reports every vertex in contact and that depth as the deepest (the gap at the step's
+    start); lifted clear, none and 0."""
+    sim = _sim(6, 0.3, solver=solver)
+    sim.add_obstacle('plane', friction=0.4)
+    x = sim.mesh.vertices.copy()
+    x[:, 2] = sim.contact_thickness - 5e-4
+    sim.set_positions(x)
+    sim.step(1)
+    state = sim.contact_state()
+    assert state['contacts'] == sim.n_vertices
+    assert state['deepest'] == pytest.approx(5e-4, rel=1e-9)
+    x[:, 2] = 0.5
+    sim.set_positions(x)
+    sim.step(1)
+    assert sim.contact_state()['contacts'] == 0 and sim.contact_state()['deepest'] == 0.0
+
+
 def test_forget_clears_the_implicit_contacts_that_carry_over():
     """A reset (or set_positions, a divergence's restore) starts the implicit solver as a
     fresh one: no vertex keeps the last step's contact mode, normal force or friction."""
