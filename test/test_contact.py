@@ -522,6 +522,36 @@ def test_contact_state_reports_the_depth_and_count_of_the_contacts(solver):
     assert sim.contact_state()['contacts'] == 0 and sim.contact_state()['deepest'] == 0.0
 
 
+def test_a_corner_gives_each_obstacle_its_own_part_of_the_force():
+    """A cloth pressed by a slanted gravity into the corner of a floor and a wall, both
+    frictionless: each can only push along its normal, so contact_forces() reports the
+    gravity's sideways part on the wall and its vertical part on the floor, nothing else. The corner vertices
+    touch both in a step; their whole force had gone to the last obstacle, the wall
+    (Control.contact's second obstacle part, core/contact.py). Explicit: the implicit
+    solve constrains a vertex by one obstacle and answers a second after the solve."""
+    sim = _sim(6, 0.1, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                         damping=5.0))
+    g = np.array([-3.0, 0.0, -G])
+    sim.gravity = g
+    floor = sim.add_obstacle('plane', friction=0.0, name='floor')
+    wall = sim.add_obstacle('plane', point=(0, 0, 0), normal=(1, 0, 0), friction=0.0,
+                            name='wall')
+    th = sim.contact_thickness
+    x = sim.mesh.vertices.copy()
+    x[:, 0] += 0.05 + th
+    x[:, 2] = th
+    sim.set_positions(x)
+    sim.step(int(round(1.0 / sim.dt)))                 # settled (damping 5 /s)
+    f = sim.contact_forces()
+    weight = sim.coefficients.mass.sum() * g
+    assert sim.contact_state()['contacts'] == sim.n_vertices
+    np.testing.assert_allclose(f[floor][0] + f[wall][0], weight, rtol=0,
+                               atol=1e-3 * np.linalg.norm(weight))
+    assert f[wall][0][0] == pytest.approx(weight[0], rel=1e-3)   # the sideways pull
+    assert abs(f[wall][0][1]) + abs(f[wall][0][2]) < 1e-9 * np.linalg.norm(weight)
+    assert abs(f[floor][0][0]) + abs(f[floor][0][1]) < 1e-9 * np.linalg.norm(weight)
+
+
 def test_forget_clears_the_implicit_contacts_that_carry_over():
     """A reset (or set_positions, a divergence's restore) starts the implicit solver as a
     fresh one: no vertex keeps the last step's contact mode, normal force or friction."""

@@ -94,11 +94,16 @@ REACH = 25       # radius of a sphere about c that holds the obstacle (0: a plan
 SPEED = 26       # the fastest any point of it within REACH moves [m/s]
 WIDTH = 27
 
-# Control.contact columns
+# Control.contact columns: the vertex's whole contact force over the step (3), the row of
+# the obstacle it touched (-1: none), its gap at the step's start, and where it touched a
+# second obstacle in the step (a corner), the part of the force that one took (3) and its
+# row (-1: none); more than two in one step count with the second
 C_FORCE = 0
 C_ID = 3
 C_GAP = 4
-C_WIDTH = 5
+C_FORCE2 = 5
+C_ID2 = 8
+C_WIDTH = 9
 
 #: distance reported where a mesh's field has no sample (outside its grid): no contact
 FAR = 1e30
@@ -413,6 +418,10 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
     b1 = v1
     b2 = v2
     hit = -1.0
+    hit2 = -1.0
+    s0 = 0.0            # the velocity change of the obstacles after the first
+    s1 = 0.0
+    s2 = 0.0
     gap = FAR
     work = 0.0
     diss = 0.0
@@ -466,15 +475,25 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
         pot = 0.5 * dt * (fs0 * (w0 - v0) + fs1 * (w1 - v1) + fs2 * (w2 - v2))
         diss += kin + pot
         work += 0.5 * m * ((w0 * w0 + w1 * w1 + w2 * w2) - (v0 * v0 + v1 * v1 + v2 * v2)) + kin
+        if hit < 0.0:
+            hit = float(k)
+        else:                                   # a second obstacle (a corner)
+            hit2 = float(k)
+            s0 += w0 - v0
+            s1 += w1 - v1
+            s2 += w2 - v2
         v0 = w0
         v1 = w1
         v2 = w2
-        hit = float(k)
     out[i, C_FORCE] = m * (v0 - b0) / dt
     out[i, C_FORCE + 1] = m * (v1 - b1) / dt
     out[i, C_FORCE + 2] = m * (v2 - b2) / dt
     out[i, C_ID] = hit
     out[i, C_GAP] = gap
+    out[i, C_FORCE2] = m * s0 / dt
+    out[i, C_FORCE2 + 1] = m * s1 / dt
+    out[i, C_FORCE2 + 2] = m * s2 / dt
+    out[i, C_ID2] = hit2
     return v0, v1, v2, work, diss
 
 

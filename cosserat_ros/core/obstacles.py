@@ -433,10 +433,14 @@ class ObstacleSet:
         given (a box's corners and edges, :mod:`.features`)."""
         out = {}
         rows = contact[:, C.C_ID].astype(np.int64)
+        rows2 = contact[:, C.C_ID2].astype(np.int64)
+        second = contact[:, C.C_FORCE2:C.C_FORCE2 + 3]
+        first = contact[:, C.C_FORCE:C.C_FORCE + 3] - second
         for r, oid in enumerate(self.ids):
-            sel = rows == r
-            f = -contact[sel, C.C_FORCE:C.C_FORCE + 3]
-            arm = x[sel] - self._items[oid].position
+            sel, sel2 = rows == r, rows2 == r
+            # a vertex that touched two obstacles in its step: each takes its own part
+            f = -np.concatenate([first[sel], second[sel2]])
+            arm = np.concatenate([x[sel], x[sel2]]) - self._items[oid].position
             force, torque = f.sum(0), np.cross(arm, f).sum(0)
             if extra is not None and r < len(extra):
                 force = force + extra[r, :3]

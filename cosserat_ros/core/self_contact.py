@@ -128,7 +128,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .contact import C_FORCE, C_ID, distance
+from .contact import C_FORCE, C_FORCE2, C_ID, C_ID2, distance
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
@@ -754,7 +754,13 @@ def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
         contact[j, C_FORCE] += f * n0
         contact[j, C_FORCE + 1] += f * n1
         contact[j, C_FORCE + 2] += f * n2
-        contact[j, C_ID] = k
+        if contact[j, C_ID] < 0.0 or contact[j, C_ID] == k:
+            contact[j, C_ID] = k
+        else:                                   # the step's second obstacle: its share
+            contact[j, C_FORCE2] += f * n0
+            contact[j, C_FORCE2 + 1] += f * n1
+            contact[j, C_FORCE2 + 2] += f * n2
+            contact[j, C_ID2] = k
 
 
 @kernel()

@@ -32,6 +32,7 @@ import warnings
 import numpy as np
 
 from . import energy as _energy
+from . import contact as C
 from .air import Air, air_pass, air_row
 from .constants import DIVERGENCE_SPEED_FACTOR, VERTEX_CHUNK
 from .geometry import CURVATURE_ESTIMATORS, Geometry
@@ -676,8 +677,8 @@ class ClothSimulator:
         :mod:`.features`) and
         ``feature_active`` (those the last step's response moved)."""
         c = self.control.contact
-        active = c[:, 3] >= 0
-        gap = c[:, 4]
+        active = c[:, C.C_ID] >= 0
+        gap = c[:, C.C_GAP]
         deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
         return {'contacts': int(active.sum()), 'deepest': deepest,
                 'feature_pairs': int(self._features.pairs),
@@ -749,8 +750,11 @@ class ClothSimulator:
     def _clear_contacts(self) -> None:
         """Forget the last step's contact output: each vertex's contact row (force, none)
         and the corners' and edges' forces (:mod:`.features`)."""
-        self.control.contact[:, :3] = 0.0
-        self.control.contact[:, 3] = -1.0
+        c = self.control.contact
+        c[:, C.C_FORCE:C.C_FORCE + 3] = 0.0
+        c[:, C.C_ID] = -1.0
+        c[:, C.C_FORCE2:C.C_FORCE2 + 3] = 0.0
+        c[:, C.C_ID2] = -1.0
         self._features.start()
 
     def internal_forces(self) -> np.ndarray:

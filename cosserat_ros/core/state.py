@@ -86,9 +86,9 @@ class Control(NamedTuple):
         """No force, pin or obstacle on n vertices; room for the air force of ``faces``
         faces (0: the controls of a step without air)."""
         from .air import AIR_WIDTH
-        from .contact import C_WIDTH, WIDTH
+        from .contact import C_ID, C_ID2, C_WIDTH, WIDTH
         contact = np.zeros((n, C_WIDTH))
-        contact[:, 3] = -1.0
+        contact[:, [C_ID, C_ID2]] = -1.0
         return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH),
                    np.zeros((faces, 3)), np.zeros(3), np.zeros(n, dtype=bool),
                    np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),

@@ -73,7 +73,7 @@ import math
 import numpy as np
 
 from ..compiled import kernel
-from ..contact import (ALL, C_FORCE, C_GAP, C_ID, MU_K, MU_S, SPEED, _far,
+from ..contact import (ALL, C_FORCE, C_FORCE2, C_GAP, C_ID, C_ID2, MU_K, MU_S, SPEED, _far,
                                        _point_velocity, distance, push_out)
 
 __all__ = ['ObstacleConstraints', 'FREE', 'STICK', 'SLIDE', 'ROUNDS', 'ADDS', 'frames',
@@ -297,6 +297,8 @@ class ObstacleConstraints:
         c[q, C_FORCE:C_FORCE + 3] = force[q]
         c[q, C_ID] = self.row[q]
         c[q, C_GAP] = self.d[q] - th
+        c[q, C_FORCE2:C_FORCE2 + 3] = 0.0         # one obstacle a constrained vertex
+        c[q, C_ID2] = -1.0
         self.fn[self.mode == FREE] = 0.0
         move = dt * self.vo[q]
         work = float(np.sum(force[q] * move))

@@ -39,7 +39,8 @@ import math
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import ALL, C_FORCE, C_GAP, C_ID, FAR, near_mask, push_out, resolve
+from ..contact import (ALL, C_FORCE, C_FORCE2, C_GAP, C_ID, C_ID2, FAR, near_mask, push_out,
+                       resolve)
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -125,6 +126,10 @@ def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2):
         control.contact[i, C_FORCE + 2] = 0.0
         control.contact[i, C_ID] = -1.0
         control.contact[i, C_GAP] = FAR
+        control.contact[i, C_FORCE2] = 0.0
+        control.contact[i, C_FORCE2 + 1] = 0.0
+        control.contact[i, C_FORCE2 + 2] = 0.0
+        control.contact[i, C_ID2] = -1.0
         return 0.0, 0.0
     ob = control.obstacles
     th = control.contact_params[0]
