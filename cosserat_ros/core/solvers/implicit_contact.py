@@ -57,9 +57,11 @@ vertex the last of them takes inside a layer is: it stays free, and the explicit
 contact's correction answers it, :func:`..update.contact_list`). A
 vertex inside the layer at the step's start is held where it is, not pushed out by the
 solve: :func:`..contact.push_out` puts it back on the layer afterwards, a position
-change without velocity as in the explicit update. Each vertex takes the obstacle whose linearised gap is the most
-negative; a second obstacle it meets in the same step is left to the explicit contact's
-correction after the solve.
+change without velocity as in the explicit update. Each vertex takes the obstacle whose
+linearised gap is the most negative; a sliding vertex that a solve takes into a second
+obstacle's layer (a corner) sticks where it is put back on both layers (this step:
+sliding along the corner's line is the next step's), and its contact force is reported
+as the first obstacle's.
 
 The contact force on a constrained vertex is written into ``Control.contact`` as the
 explicit update writes it, and its work is split as there: ``f_c . v_o dt`` is the
@@ -87,10 +89,11 @@ ADDS = 4
 
 
 @kernel()
-def frames(x, pred, free, dt, ob, meta, data, th, k_out, d_out, n_out, vo_out):
+def frames(x, pred, free, dt, ob, meta, data, th, skip, k_out, d_out, n_out, vo_out):
     """For every free vertex i: of the obstacles whose linearised gap at ``pred[i]``
-    (module docstring) is negative, the one where it is the most negative: its row
-    (``k_out``, -1 for none), distance ``d`` [m], normal and velocity at ``x[i]``."""
+    (module docstring) is negative, the one where it is the most negative, obstacle
+    ``skip[i]`` left out: its row (``k_out``, -1 for none), distance ``d`` [m], normal
+    and velocity at ``x[i]``."""
     for i in range(x.shape[0]):
         k_out[i] = -1
         if not free[i]:
@@ -104,7 +107,7 @@ def frames(x, pred, free, dt, ob, meta, data, th, k_out, d_out, n_out, vo_out):
         reach = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
         best = 0.0
         for k in range(ob.shape[0]):
-            if _far(ob, k, x0, x1, x2, th + reach + dt * ob[k, SPEED]):
+            if k == skip[i] or _far(ob, k, x0, x1, x2, th + reach + dt * ob[k, SPEED]):
                 continue
             d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
             o0, o1, o2 = _point_velocity(ob, k, x0, x1, x2)
@@ -149,6 +152,7 @@ class ObstacleConstraints:
         self._d = np.zeros(n)
         self._n = np.zeros((n, 3))
         self._vo = np.zeros((n, 3))
+        self._none = np.full(n, -1, np.int64)
 
     def clear(self) -> None:
         """Forget what carries over from the last step (the modes, the normal forces):
@@ -158,11 +162,13 @@ class ObstacleConstraints:
         self.friction[:] = 0.0
 
     # ------------------------------------------------------------------ the set
-    def _find(self, xn, pred, free, control, dt):
-        """Rows etc. of the vertices whose linearised gap at ``pred`` is negative:
-        a boolean mask; the frames in the ``_k.._vo`` scratch arrays."""
+    def _find(self, xn, pred, free, control, dt, skip=None):
+        """Rows etc. of the vertices whose linearised gap at ``pred`` is negative (for
+        an obstacle other than ``skip``'s, per vertex): a boolean mask; the frames in the
+        ``_k.._vo`` scratch arrays."""
         frames(xn, pred, free, dt, control.obstacles, control.sdf_meta, control.sdf_data,
-               control.contact_params[0], self._k, self._d, self._n, self._vo)
+               control.contact_params[0], self._none if skip is None else skip, self._k,
+               self._d, self._n, self._vo)
         return self._k >= 0
 
     def _take(self, sel):
@@ -276,6 +282,24 @@ class ObstacleConstraints:
             moving = a > 0.0
             q, s, a = q[moving], s[moving], a[moving]
             self.friction[q] = -(ob[self.row[q], MU_K] * fn[q] / a)[:, None] * s
+        # a sliding vertex the solve took into a second obstacle's layer (a corner: the
+        # floor and a wall) sticks where it is put back on both layers: its one
+        # constraint held it on the first only, and a push onto the second after the
+        # solve moved it without its neighbours (a frictionless corner's cloth rebounded,
+        # its strain energy rising by 4e-3 J in a step)
+        sl = self.mode == SLIDE
+        if sl.any():
+            two = self._find(xn, xk, sl, control, dt, skip=self.row)
+            q = np.flatnonzero(two)
+            if len(q):
+                changed = True
+                self.mode[q] = STICK
+                self.switched[q] = True
+                self.friction[q] = 0.0
+                t = xk.copy()
+                push_list(q, t, ob, control.sdf_meta, control.sdf_data,
+                          control.contact_params[0])
+                self.target[q] = t[q]
         new = self._find(xn, xk, free & (self.mode == FREE) & ~release, control, dt)
         if new.any():
             # held where the solve took it, on the layer: the solve that follows starts
