@@ -146,6 +146,24 @@ def test_publishes_mesh_energy_and_diagnostics(h):
                 'rejected_vertex_forces'):
         assert key in diag
     assert int(diag['vertices']) == (N + 1) ** 2
+    assert float(diag['dt']) == h.node.sim.dt
+    assert float(diag['critical_dt']) == pytest.approx(h.node.sim.critical_dt(), rel=1e-12)
+    # the values are the simulator's: paused (the state stands still), the next energy
+    # message against sim.energy(), and its total the sum of its parts
+    h.pause(True)
+    n0 = len(h.energies)
+    assert h.spin_until(lambda: len(h.energies) > n0 + 1, 10)
+    st = h.energies[-1].status[0]
+    assert st.level == DiagnosticStatus.WARN and st.message == 'paused'
+    vals = {kv.key: float(kv.value) for kv in st.values}
+    ref = h.node.sim.energy()
+    for key in ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'external_work',
+                'dissipated', 'total'):
+        assert vals[key] == pytest.approx(ref[key], rel=1e-9, abs=1e-15), key
+    assert vals['total'] == pytest.approx(vals['kinetic'] + vals['stretching'] + vals['bending']
+                                          + vals['coupling'] + vals['gravity'], rel=1e-9)
+    assert vals['step'] == h.node.sim.step_count and vals['sim_time'] == h.node.sim.time
+    assert vals['gravity'] < 0.0 and vals['kinetic'] > 0.0          # it has fallen
 
 
 def test_parameters_validated_and_applied(h):
