@@ -154,8 +154,10 @@ def test_clamped_plate_deflection():
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_cantilever_free_edges(pattern):
     r = sc.cantilever(20, pattern=pattern)
-    # tip q L^4 / (8 D_eff) with D (1 - nu^2) <= D_eff <= D, within 10%
-    assert 0.9 * r['w_plate'] <= r['w'] <= 1.1 * r['w_beam'], r
+    # tip q L^4 / (8 D_eff) with D (1 - nu^2) <= D_eff <= D (the beam and the cylindrical
+    # bending): inside that range, no margin (D_eff / D 0.904-0.926 at N = 20, 0.90-0.92
+    # at N = 40 in docs/validation.md; the range is 0.889-1)
+    assert r['w_plate'] <= r['w'] <= r['w_beam'], r
 
 
 @pytest.mark.parametrize('pattern', PATTERNS)
