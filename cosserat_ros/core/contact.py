@@ -54,12 +54,15 @@ m (v_before - v_start) / dt`` gains over the displacement the response takes fro
 what the contact balances; in a resting contact the two cancel, in a collision without
 force the first is what is lost). The obstacle's work on the cloth, the kinetic energy's
 change less the first, is external work (``State.acc``), so the energy balance of the
-report still closes, at rest too.
+report still closes, at rest too (with the update's own ledger corrected to the
+displacement after contact: :func:`.solvers.update.contact_vertex`).
 
 Layout: the obstacles are rows of :data:`WIDTH` floats in ``Control.obstacles`` (columns
 named below), mesh fields in ``Control.sdf_meta`` / ``Control.sdf_data``; per vertex, the
 last step's contact in ``Control.contact`` (force on the vertex (3), obstacle row or -1,
-gap ``d - th`` at its old position). This module imports no ROS package.
+gap ``d - th`` at its old position, and where a second obstacle acted in the step, its
+part of the force (3) and row; the columns ``C_*`` below). This module imports no ROS
+package.
 """
 from __future__ import annotations
 

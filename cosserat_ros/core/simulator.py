@@ -753,6 +753,7 @@ class ClothSimulator:
         c = self.control.contact
         c[:, C.C_FORCE:C.C_FORCE + 3] = 0.0
         c[:, C.C_ID] = -1.0
+        c[:, C.C_GAP] = C.FAR
         c[:, C.C_FORCE2:C.C_FORCE2 + 3] = 0.0
         c[:, C.C_ID2] = -1.0
         self._features.start()

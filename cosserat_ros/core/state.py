@@ -30,8 +30,10 @@ field             shape / unit      meaning
                                     origin, spacing (:mod:`.contact`)
 ``Control.sdf_data`` (s,) [m]       their samples
 ``Control.contact_params`` (1,)     contact thickness [m]
-``Control.contact`` (n, 5)          written by the step: each vertex's contact force [N]
-                                    (3), obstacle row (-1: none), gap to the layer [m]
+``Control.contact`` (n, 9)          written by the step: each vertex's contact force [N]
+                                    (3), obstacle row (-1: none), gap to the layer [m],
+                                    a second obstacle's part of the force (3) and its row
+                                    (a corner; :mod:`.contact`)
 ================  ================  ========================================================
 """
 from __future__ import annotations
@@ -86,9 +88,10 @@ class Control(NamedTuple):
         """No force, pin or obstacle on n vertices; room for the air force of ``faces``
         faces (0: the controls of a step without air)."""
         from .air import AIR_WIDTH
-        from .contact import C_ID, C_ID2, C_WIDTH, WIDTH
+        from .contact import C_GAP, C_ID, C_ID2, C_WIDTH, FAR, WIDTH
         contact = np.zeros((n, C_WIDTH))
         contact[:, [C_ID, C_ID2]] = -1.0
+        contact[:, C_GAP] = FAR
         return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH),
                    np.zeros((faces, 3)), np.zeros(3), np.zeros(n, dtype=bool),
                    np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),

@@ -372,7 +372,7 @@ def _gather_update(q0, q1, gl_vert, vf_ptr, vf_row, frow, tr_ptr, tr_slot, contr
         d += dd
         b += db
     if control.obstacles.shape[0] > 0:
-        dw, dd = contact_list(gl_vert, q0, q1, x, v, force, control, coeff, dt)
+        dw, dd = contact_list(gl_vert, q0, q1, x, v, force, control, coeff, dt, False)
         w += dw
         d += dd
     return w, d, b

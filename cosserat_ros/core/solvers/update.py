@@ -112,11 +112,16 @@ def advance_vertex(i, f0, f1, f2, x, v, control, coeff, dt, vmax2):
 
 
 @kernel(inline='always')
-def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2):
+def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2, backward):
     """The contact response of vertex i after :func:`advance_vertex` moved it with internal
     force ``force[i]`` (see the module docstring), against the obstacles ``mask`` keeps
     (:func:`..contact.near_mask`, valid while the vertex ends slower than sqrt(vmax2));
-    returns (external work [J], dissipation [J]) of the contact."""
+    returns (external work [J], dissipation [J]) of the contact: the response's
+    (:func:`..contact.resolve`), and what the update's ledger counted of the applied
+    force's work and the damping over the displacement before contact, ``dt v``, that
+    belongs to the one after it, ``dt w``: ``dt f_a . (w - v)`` and ``dt c v_d . (w -
+    v)``, ``v_d`` the velocity the damping acted at (the start velocity; ``backward``:
+    the end one, the implicit step's)."""
     i = nb.uint64(i)
     if control.pinned[i]:
         # a pinned or held vertex moves as prescribed, in no contact: its row is cleared
@@ -139,19 +144,30 @@ def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2):
     x0 = x[i, 0] - dt * v0
     x1 = x[i, 1] - dt * v1
     x2 = x[i, 2] - dt * v2
-    # the step's force m (v - v_start) / dt, from Eq. 29 (advance_vertex) solved for
-    # v_start: (F - c v) / (1 - c dt / m), F = internal + applied + weight
+    # the step's force m (v - v_start) / dt, with v_start from Eq. 29 (advance_vertex)
+    # solved for it: (v - dt F / m) / (1 - c dt / m), F = internal + applied + weight
     m = coeff.mass[i]
     c = coeff.damp[i]
     fa = control.f_applied
     g = control.gravity
     den = 1.0 - c * dt / m
-    den = den if den > 0.0 else 1.0
-    fs0 = (force[i, 0] + fa[i, 0] + m * g[0] - c * v0) / den
-    fs1 = (force[i, 1] + fa[i, 1] + m * g[1] - c * v1) / den
-    fs2 = (force[i, 2] + fa[i, 2] + m * g[2] - c * v2) / den
-    v0, v1, v2, w, d = resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob,
+    if abs(den) < 1e-12:             # the update forgot v_start: F - c v stands for it
+        den = 1.0
+    u0 = (v0 - dt / m * (force[i, 0] + fa[i, 0] + m * g[0])) / den
+    u1 = (v1 - dt / m * (force[i, 1] + fa[i, 1] + m * g[1])) / den
+    u2 = (v2 - dt / m * (force[i, 2] + fa[i, 2] + m * g[2])) / den
+    p0 = v0
+    p1 = v1
+    p2 = v2
+    v0, v1, v2, w, d = resolve(i, x0, x1, x2, v0, v1, v2, m * (p0 - u0) / dt,
+                               m * (p1 - u1) / dt, m * (p2 - u2) / dt, m, dt, ob,
                                control.sdf_meta, control.sdf_data, th, control.contact, mask)
+    if backward:
+        u0 = p0
+        u1 = p1
+        u2 = p2
+    w += dt * (fa[i, 0] * (v0 - p0) + fa[i, 1] * (v1 - p1) + fa[i, 2] * (v2 - p2))
+    d += dt * c * (u0 * (v0 - p0) + u1 * (v1 - p1) + u2 * (v2 - p2))
     if v0 * v0 + v1 * v1 + v2 * v2 > vmax2:
         mask = ALL
     x0, x1, x2 = push_out(x0 + dt * v0, x1 + dt * v1, x2 + dt * v2, ob, control.sdf_meta,
@@ -177,9 +193,9 @@ def _box(lo0, lo1, lo2, hi0, hi1, hi2, s2, i, x, v, dt):
 
 @kernel(refcount=False)
 def contact_range(i0, i1, x, v, force, control, coeff, dt):
-    """:func:`contact_vertex` for vertices i0..i1-1 (internal forces ``force``), the
-    obstacles first narrowed to those that may reach them (:func:`..contact.near_mask`);
-    returns (work, dissipation)."""
+    """:func:`contact_vertex` for vertices i0..i1-1 (internal forces ``force``) after the
+    explicit update, the obstacles first narrowed to those that may reach them
+    (:func:`..contact.near_mask`); returns (work, dissipation)."""
     inf = math.inf
     lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
     for i in range(i0, i1):
@@ -189,15 +205,16 @@ def contact_range(i0, i1, x, v, force, control, coeff, dt):
     w = 0.0
     d = 0.0
     for i in range(i0, i1):
-        dw, dd = contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2)
+        dw, dd = contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2, False)
         w += dw
         d += dd
     return w, d
 
 
 @kernel(refcount=False)
-def contact_list(verts, q0, q1, x, v, force, control, coeff, dt):
-    """:func:`contact_range` for vertices ``verts[q0:q1]``."""
+def contact_list(verts, q0, q1, x, v, force, control, coeff, dt, backward):
+    """:func:`contact_range` for vertices ``verts[q0:q1]`` (``backward``: after the
+    implicit step, :func:`contact_vertex`)."""
     inf = math.inf
     lo0, lo1, lo2, hi0, hi1, hi2, s2 = inf, inf, inf, -inf, -inf, -inf, 0.0
     for q in range(q0, q1):
@@ -208,7 +225,8 @@ def contact_list(verts, q0, q1, x, v, force, control, coeff, dt):
     w = 0.0
     d = 0.0
     for q in range(q0, q1):
-        dw, dd = contact_vertex(verts[q], x, v, force, control, coeff, dt, mask, vmax2)
+        dw, dd = contact_vertex(verts[q], x, v, force, control, coeff, dt, mask, vmax2,
+                                backward)
         w += dw
         d += dd
     return w, d
