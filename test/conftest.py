@@ -15,15 +15,25 @@ import sys
 def _own_domain() -> int:
     """A ROS domain no other test run on this machine holds: the first of 1..100 (from
     one the process id picks) whose lock file this session can lock; the lock is held
-    until the session's process ends. (An exported ROS_DOMAIN_ID is not taken: it may be
-    a live graph's.)"""
+    until the session's process ends. The domain exported in ROS_DOMAIN_ID, if any, is
+    skipped (it may be a live graph's) and then replaced by this one. The lock files are
+    opened read-only (flock needs no more), so that another user's can be locked too."""
     import fcntl
     import tempfile
+    try:
+        exported = int(os.environ.get('ROS_DOMAIN_ID', ''))
+    except ValueError:
+        exported = None
     for k in range(100):
         domain = 1 + (os.getpid() + k) % 100
-        fd = os.open(os.path.join(tempfile.gettempdir(),
-                                  f'cosserat_ros_test_domain_{domain}.lock'),
-                     os.O_CREAT | os.O_RDWR, 0o666)
+        if domain == exported:
+            continue
+        try:
+            fd = os.open(os.path.join(tempfile.gettempdir(),
+                                      f'cosserat_ros_test_domain_{domain}.lock'),
+                         os.O_CREAT | os.O_RDONLY, 0o666)
+        except OSError:
+            continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -107,10 +117,15 @@ def pytest_sessionfinish(session, exitstatus):
         except subprocess.TimeoutExpired:
             _precompile.kill()
     left = [p for p in _Tracked.started if p is not _precompile and p.poll() is None]
+    for p in left:                     # as for _precompile: a chance to clean up first
+        p.terminate()
     for p in left:
-        p.kill()
-        p.wait(10)
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(10)
     if left:
-        print(f'\nconftest: killed {len(left)} process(es) a test left running: '
+        print(f'\nconftest: stopped {len(left)} process(es) a test left running: '
               + ', '.join(str(p.args[0] if isinstance(p.args, (list, tuple)) else p.args)
                           for p in left))

@@ -932,13 +932,13 @@ def test_handles_grasp_move_report_and_release_through_ros():
         n0 = len(h.meshes)
         res = call(False)
         assert res.success and not h.node.sim.handles
-        # the released handle's spheres are deleted from ~/mesh once (a marker stays on
-        # screen until replaced or deleted), and drawn no more
+        # the released handle's spheres are deleted from ~/mesh (a marker stays on screen
+        # until replaced or deleted), in every message, and drawn no more
         assert h.spin_until(lambda: any(m.id == 3 and m.action == Marker.DELETE
                                         for msg in h.meshes[n0:] for m in msg.markers), 5)
         h.spin(0.2)
         assert h.node.diverged is None and np.all(np.isfinite(h.node.sim.positions))
-        assert not any(m.id == 3 for m in h.meshes[-1].markers)
+        assert [m.action for m in h.meshes[-1].markers if m.id == 3] == [Marker.DELETE]
     finally:
         h.close()
 

@@ -23,7 +23,7 @@ import numpy as np
 __all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'POINT_FIELDS',
            'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
-           'PINS_ID', 'HANDLES_ID', 'optional_markers']
+           'PINS_ID', 'HANDLES_ID', 'optional_markers', 'OPTIONAL_MARKERS']
 
 TRIANGLE_LIST = 11
 LINE_LIST = 5
@@ -132,9 +132,10 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     handles : (h, 3) float64 or None; the grasp handles' origins as a SPHERE_LIST (id 3,
         three times the pin size) when non-empty.
     delete : marker ids (of 1, 2, 3) to remove, each as a DELETE marker after the others:
-        one that the last message drew and this one does not (markers live until
-        replaced or deleted, so a released grasp's spheres would otherwise stay on
-        screen; :func:`optional_markers` says which a message draws).
+        the node sends one for each optional marker a message does not draw, in every
+        message (markers live until replaced or deleted, so a released grasp's spheres
+        would otherwise stay on screen, and one lost message must not leave them there;
+        :func:`optional_markers` says which a message draws).
 
     Marker 0 is a TRIANGLE_LIST with one point and one colour per triangle corner, unit
     scale and an opaque base colour (RViz needs a non-zero ``color.a`` even with per-vertex
@@ -162,6 +163,10 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
         _marker(w, sec, nanosec, frame_id, int(mid), SPHERE_LIST, 1.0, (0.0, 0.0, 0.0, 0.0),
                 np.zeros((0, 3)), None, action=DELETE)
     return w.bytes()
+
+
+#: the ids of the optional markers of ~/mesh: wireframe, pins, handles
+OPTIONAL_MARKERS = frozenset((WIREFRAME_ID, PINS_ID, HANDLES_ID))
 
 
 def optional_markers(edges=None, pinned=None, handles=None) -> frozenset:

@@ -56,6 +56,9 @@ SERVICE_TIMEOUT = 2.0
 #: one is refused before it is parsed, which would hold the interpreter's lock)
 MAX_REQUEST_BYTES = 4096
 #: the most calls waiting for the node's thread; more are refused as busy
+#: the scene's entities besides the cloth, deleted in each frame that does not show them
+OPTIONAL_ENTITIES = frozenset(('handles', 'obstacles'))
+
 MAX_PENDING = 16
 #: messages the server keeps for a client that does not read (the SDK's default, 1024,
 #: is ~1 GB of scenes at 160 x 160)
@@ -81,7 +84,6 @@ class LiveView:
         self._handlers = handlers
         self._requests: 'queue.Queue' = queue.Queue(maxsize=MAX_PENDING)
         self._meshes: dict = {}
-        self._shown: set = set()        # the scene entities the last frame showed
         self.context = foxglove.Context()
         def schema(name):
             kind, request = SERVICE_TYPES[name]
@@ -193,11 +195,10 @@ class LiveView:
                                               size=m.Vector3(x=0.03, y=0.03, z=0.03),
                                               color=green)
                                               for a, b, c in np.asarray(handles).tolist()]))
-        # an entity the last frame showed and this one does not (the last obstacle
-        # removed, the last grasp released) is deleted: a viewer keeps it until then
+        # an entity this frame does not show (no obstacle, no grasp) is deleted, in every
+        # frame: a viewer keeps it until then, and a client that lags loses frames
         gone = [m.SceneEntityDeletion(timestamp=ts, type=m.SceneEntityDeletionType.MatchingId,
-                                      id=i) for i in sorted(self._shown - shown)]
-        self._shown = shown
+                                      id=i) for i in sorted(OPTIONAL_ENTITIES - shown)]
         self.scene.log(m.SceneUpdate(deletions=gone, entities=entities),
                        log_time=int(stamp_ns))
 

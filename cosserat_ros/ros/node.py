@@ -74,8 +74,8 @@ from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
                               steps_tiled)
 from . import commands
-from .conversions import (colormap, mesh_marker_array, optional_markers, percentile,
-                          point_cloud, shape_mesh)
+from .conversions import (colormap, mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
+                          percentile, point_cloud, shape_mesh)
 from .pacing import Pacer, ThreadTuner
 from .params import (AIR_KEYS, check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
                      MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
@@ -216,7 +216,6 @@ class ClothNode(Node):
         self._declared_obstacles(p['obstacles.names'])
         self._coloring = check_choice(p['coloring'], COLORINGS, 'coloring')
         self._wireframe = bool(p['wireframe'])
-        self._drawn = frozenset()       # the optional ~/mesh markers the last message drew
         self._force_timeout = p['force_timeout']
         self._max_force = p['max_force']
         self._max_acc = p['max_acceleration']
@@ -1143,14 +1142,14 @@ class ClothNode(Node):
         colors = self.vertex_colors()
         handles = np.array([d['position'] for d in self.sim.handles.values()])
         edges = self.mesh.edges if self._wireframe else None
-        # a marker the last message drew and this one does not (the wireframe turned off,
-        # the last pin or grasp released) is deleted, or it would stay on screen
+        # an optional marker this message does not draw (the wireframe off, no pin or
+        # grasp) is deleted, in every message: a marker stays on screen until deleted,
+        # and one lost message must not leave it there
         drawn = optional_markers(edges, pinned, handles)
         self.mesh_pub.publish(mesh_marker_array(
             x, self.mesh.faces, colors, stamp, self.frame_id, edges=edges, pinned=pinned,
             pin_size=0.3 * self.mesh.mean_edge_length, handles=handles,
-            delete=sorted(self._drawn - drawn)))
-        self._drawn = drawn
+            delete=sorted(OPTIONAL_MARKERS - drawn)))
         if self.live is not None:
             self.live.publish(stamp, self.frame_id, x, self.mesh.faces, colors, self._energy,
                               lambda: [(d['shape'], d, self.sim.obstacle_mesh(oid)
