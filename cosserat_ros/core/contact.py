@@ -652,8 +652,8 @@ def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
     grid column's crossings with the surface. Between samples trilinear interpolation:
     exact where the distance is linear over a cell (near a face), within ``spacing^2 /
     (8 R)`` of a surface of curvature radius R. Inside, deeper than ``margin``, the depth
-    is the Euclidean distance transform's (to the nearest sample outside, to within a
-    sample spacing), at least ``margin``: a vertex found that deep (a mesh posed onto the
+    is the Euclidean distance transform's (to the nearest sample outside, less half a
+    spacing: within about half a spacing), at least ``margin``: a vertex found that deep (a mesh posed onto the
     cloth) is pushed out by the way nearest the surface, where a constant depth had no
     gradient and its normal was the mesh's +z. Cost: each triangle visits the samples
     within ``margin`` of its bounding box."""
@@ -669,6 +669,8 @@ def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
     _inside(v, f, lo, shape, float(spacing), inside)
     deep = inside & (dist >= margin)
     if deep.any():
+        # to the nearest sample outside, which lies up to a spacing beyond the surface:
+        # half a spacing less, within half a spacing of the depth
         depth = distance_transform_edt(inside.reshape(tuple(shape))).reshape(-1) * spacing
-        dist[deep] = np.maximum(depth[deep], margin)
+        dist[deep] = np.maximum(depth[deep] - 0.5 * spacing, margin)
     return lo, shape, np.where(inside, -dist, dist)
