@@ -507,8 +507,9 @@ def push_out(x0, x1, x2, ob, meta, data, th, mask):
     whose bit is clear in ``mask`` (:func:`near_mask`) are skipped until a push has moved
     the vertex: the mask holds for the position the step moved it to, not beyond. After
     a push every obstacle is checked again, the earlier ones too (a push off a wall can
-    take the vertex back into the floor's layer, in a corner), up to :data:`PUSHES`
-    pushes: in a wedge narrower than the layer no position is outside both, and the
+    take the vertex back into the floor's layer, in a corner) and the same one (whose
+    distance, deep inside a mesh or on a curved surface, is not exact along the push),
+    up to :data:`PUSHES` pushes: in a wedge narrower than the layer no position is outside both, and the
     vertex ends on the layer of the last obstacle that pushed it."""
     nob = ob.shape[0]
     left = nb.uint64(mask) & _bits(0, nob)
@@ -526,10 +527,8 @@ def push_out(x0, x1, x2, ob, meta, data, th, mask):
             x1 += (th - d) * n1
             x2 += (th - d) * n2
             pushes += 1
-            if pushes < PUSHES:                 # every other obstacle again
+            if pushes < PUSHES:                 # every obstacle again, this one too
                 left = _bits(0, nob)
-                if k < MASK_BITS:
-                    left &= ~(nb.uint64(1) << nb.uint64(k))
                 k = nb.int64(-1)
             else:                               # the last pass: the later ones only
                 left = _bits(k + 1, nob)
