@@ -60,8 +60,8 @@ solve: :func:`..contact.push_out` puts it back on the layer afterwards, a positi
 change without velocity as in the explicit update. Each vertex takes the obstacle whose
 linearised gap is the most negative; a sliding vertex that a solve takes into a second
 obstacle's layer (a corner) sticks where it is put back on both layers (this step:
-sliding along the corner's line is the next step's), and its contact force is split
-between the two by their normals.
+sliding along the corner's line is the next step's), and its contact force is reported
+as the first obstacle's.
 
 The contact force on a constrained vertex is written into ``Control.contact`` as the
 explicit update writes it, and its work is split as there: ``f_c . v_o dt`` is the
@@ -148,8 +148,6 @@ class ObstacleConstraints:
         self.target = np.zeros((n, 3))       # where a sticking vertex ends the step
         self.fn = np.zeros(n)                # the last normal force [N], carried over
         self.switched = np.zeros(n, bool)    # changed between stick and slide this step
-        self.row2 = np.full(n, -1, np.int64)  # a corner's second obstacle (sticking)
-        self.normal2 = np.zeros((n, 3))
         self._k = np.full(n, -1, np.int64)
         self._d = np.zeros(n)
         self._n = np.zeros((n, 3))
@@ -160,7 +158,6 @@ class ObstacleConstraints:
         """Forget what carries over from the last step (the modes, the normal forces):
         the next step starts as without a last one."""
         self.mode[:] = FREE
-        self.row2[:] = -1
         self.fn[:] = 0.0
         self.friction[:] = 0.0
 
@@ -189,18 +186,12 @@ class ObstacleConstraints:
         self.mode[:] = FREE
         self.switched[:] = False
         self.friction[:] = 0.0
-        self.row2[:] = -1
         self._take(hit)
         self.mode[hit] = STICK
         th = control.contact_params[0]
         self.target[hit] = (xn + dt * self.vo
                             - np.maximum(self.d - th, 0.0)[:, None] * self.normal)[hit]
-        # a vertex predicted in a second obstacle's layer as well (a corner) sticks, and
-        # its force is split between the two (:meth:`finish`)
-        two = self._find(xn, pred, hit, control, dt, skip=self.row) if hit.any() else hit
-        self.row2[two] = self._k[two]
-        self.normal2[two] = self._n[two]
-        sl = np.flatnonzero(hit & slid & (self.fn > 0.0) & ~two)
+        sl = np.flatnonzero(hit & slid & (self.fn > 0.0))
         if len(sl):
             nrm = self.normal[sl]
             u = vn[sl] - self.vo[sl]
@@ -261,10 +252,7 @@ class ObstacleConstraints:
         changed = bool(release.any()) and not adds_only
         self.mode[release] = FREE
         self.friction[release] = 0.0
-        self.row2[release] = -1
-        # (a corner's vertex sticks: its force across the first normal is the second's)
-        st = np.flatnonzero((self.mode == STICK) & ~self.switched & (self.row2 < 0)
-                            & (not adds_only))
+        st = np.flatnonzero((self.mode == STICK) & ~self.switched & (not adds_only))
         if len(st):
             ft = r[st] - fn[st, None] * nrm[st]
             a = np.linalg.norm(ft, axis=1)
@@ -308,8 +296,6 @@ class ObstacleConstraints:
                 self.mode[q] = STICK
                 self.switched[q] = True
                 self.friction[q] = 0.0
-                self.row2[q] = self._k[q]
-                self.normal2[q] = self._n[q]
                 t = xk.copy()
                 push_list(q, t, ob, control.sdf_meta, control.sdf_data,
                           control.contact_params[0])
@@ -335,22 +321,8 @@ class ObstacleConstraints:
         c[q, C_FORCE:C_FORCE + 3] = force[q]
         c[q, C_ID] = self.row[q]
         c[q, C_GAP] = self.d[q] - th
-        c[q, C_FORCE2:C_FORCE2 + 3] = 0.0
+        c[q, C_FORCE2:C_FORCE2 + 3] = 0.0         # one obstacle a constrained vertex
         c[q, C_ID2] = -1.0
-        # a corner's vertex: the second obstacle takes the part of the force along its
-        # normal, f = a n_1 + b n_2 + (the rest, the first's): b from the 2 x 2 Gram
-        # system of the two normals (none where they are parallel, or it would pull)
-        two = q[self.row2[q] >= 0]
-        if len(two):
-            n1, n2, f = self.normal[two], self.normal2[two], force[two]
-            cos = np.sum(n1 * n2, 1)
-            det = 1.0 - cos * cos
-            ok = det > 1e-6
-            b = np.where(ok, (np.sum(f * n2, 1) - cos * np.sum(f * n1, 1))
-                         / np.where(ok, det, 1.0), 0.0)
-            b = np.maximum(b, 0.0)
-            c[two, C_FORCE2:C_FORCE2 + 3] = b[:, None] * n2
-            c[two, C_ID2] = np.where(b > 0.0, self.row2[two], -1)
         self.fn[self.mode == FREE] = 0.0
         move = dt * self.vo[q]
         work = float(np.sum(force[q] * move))
