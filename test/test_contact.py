@@ -533,15 +533,10 @@ def test_contact_state_reports_the_depth_and_count_of_the_contacts(solver):
     assert sim.contact_state()['contacts'] == 0 and sim.contact_state()['deepest'] == 0.0
 
 
-def test_a_corner_gives_each_obstacle_its_own_part_of_the_force():
-    """A cloth pressed by a slanted gravity into the corner of a floor and a wall, both
-    frictionless: each can only push along its normal, so contact_forces() reports the
-    gravity's sideways part on the wall and its vertical part on the floor, nothing else. The corner vertices
-    touch both in a step; their whole force had gone to the last obstacle, the wall
-    (Control.contact's second obstacle part, core/contact.py). Explicit: the implicit
-    solve constrains a vertex by one obstacle and answers a second after the solve."""
-    sim = _sim(6, 0.1, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
-                                         damping=5.0))
+def _in_a_corner(sim):
+    """The 0.1 m sheet of ``sim`` laid on a frictionless floor against a frictionless wall
+    (the plane x = 0), both on their contact layers, under gravity slanted into the wall:
+    (the gravity, the floor's id, the wall's id)."""
     g = np.array([-3.0, 0.0, -G])
     sim.gravity = g
     floor = sim.add_obstacle('plane', friction=0.0, name='floor')
@@ -552,6 +547,20 @@ def test_a_corner_gives_each_obstacle_its_own_part_of_the_force():
     x[:, 0] += 0.05 + th
     x[:, 2] = th
     sim.set_positions(x)
+    return g, floor, wall
+
+
+def test_a_corner_gives_each_obstacle_its_own_part_of_the_force():
+    """A cloth pressed by a slanted gravity into the corner of a floor and a wall, both
+    frictionless: each can only push along its normal, so contact_forces() reports the
+    gravity's sideways part on the wall and its vertical part on the floor, nothing else.
+    The corner vertices touch both in a step; their whole force had gone to the last
+    obstacle, the wall (Control.contact's second obstacle part, core/contact.py).
+    Explicit: the implicit solve constrains a vertex by one obstacle and answers a second
+    after the solve."""
+    sim = _sim(6, 0.1, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,
+                                         damping=5.0))
+    g, floor, wall = _in_a_corner(sim)
     sim.step(int(round(1.0 / sim.dt)))                 # settled (damping 5 /s)
     f = sim.contact_forces()
     weight = sim.coefficients.mass.sum() * g
@@ -572,22 +581,13 @@ def test_the_implicit_solver_rests_a_cloth_in_a_corner_without_a_rebound():
     rebounded off the wall at 0.16 m/s. Now it rests: the energy never exceeds the
     start's plus the work done, and the two obstacles together carry the weight."""
     sim = _sim(6, 0.1, solver='implicit')
-    g = np.array([-3.0, 0.0, -G])
-    sim.gravity = g
-    floor = sim.add_obstacle('plane', friction=0.0, name='floor')
-    wall = sim.add_obstacle('plane', point=(0, 0, 0), normal=(1, 0, 0), friction=0.0,
-                            name='wall')
-    th = sim.contact_thickness
-    x = sim.mesh.vertices.copy()
-    x[:, 0] += 0.05 + th
-    x[:, 2] = th
-    sim.set_positions(x)
+    g, floor, wall = _in_a_corner(sim)
     e0 = sim.energy()['total']
     for _ in range(40):
         sim.step(1)
         e = sim.energy()
         assert e['total'] - e0 <= e['external_work'] - e['dissipated'] + 1e-9, e
-        assert sim.positions[:, 0].min() < th + 1e-6             # at the wall
+        assert sim.positions[:, 0].min() < sim.contact_thickness + 1e-6     # at the wall
         assert np.abs(sim.velocities).max() < 1e-2
     f = sim.contact_forces()
     weight = sim.coefficients.mass.sum() * g

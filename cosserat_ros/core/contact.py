@@ -509,8 +509,8 @@ def push_out(x0, x1, x2, ob, meta, data, th, mask):
     a push every obstacle is checked again, the earlier ones too (a push off a wall can
     take the vertex back into the floor's layer, in a corner) and the same one (whose
     distance, deep inside a mesh or on a curved surface, is not exact along the push),
-    up to :data:`PUSHES` pushes: in a wedge narrower than the layer no position is outside both, and the
-    vertex ends on the layer of the last obstacle that pushed it."""
+    up to :data:`PUSHES` pushes: in a wedge narrower than the layer no position is
+    outside both, and the vertex ends on the layer of the last obstacle that pushed it."""
     nob = ob.shape[0]
     left = nb.uint64(mask) & _bits(0, nob)
     k = nb.int64(-1)
@@ -652,10 +652,10 @@ def mesh_distance_field(vertices: np.ndarray, faces: np.ndarray, spacing: float,
     exact where the distance is linear over a cell (near a face), within ``spacing^2 /
     (8 R)`` of a surface of curvature radius R. Inside, deeper than ``margin``, the depth
     is the Euclidean distance transform's (to the nearest sample outside, less half a
-    spacing: within about half a spacing), at least ``margin``: a vertex found that deep (a mesh posed onto the
-    cloth) is pushed out by the way nearest the surface, where a constant depth had no
-    gradient and its normal was the mesh's +z. Cost: each triangle visits the samples
-    within ``margin`` of its bounding box."""
+    spacing: within about half a spacing), at least ``margin``: a vertex found that deep
+    (a mesh posed onto the cloth) is pushed out by the way nearest the surface, where a
+    constant depth had no gradient and its normal was the mesh's +z. Cost: each triangle
+    visits the samples within ``margin`` of its bounding box."""
     from scipy.ndimage import distance_transform_edt
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
