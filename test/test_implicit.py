@@ -587,3 +587,38 @@ def test_a_sheet_comes_to_the_same_rest_with_the_split_preconditioner(monkeypatc
     sag = -rest[1][:, 2].min()
     assert sag > 0.01
     assert np.abs(rest[0] - rest[1]).max() <= 1e-5 * sag
+
+
+@pytest.mark.parametrize('n', [1, 63, 64, 1000])
+def test_the_fused_vector_kernels_are_their_numpy_expressions(n):
+    """core/solvers/vectors.py against the numpy it replaces in CG (n below, at and
+    above the number of fixed chunks of its sums), to round-off; the frames' change
+    and its inverse return r (orthonormal frames), 0 on the pinned vertices."""
+    from cosserat_ros.core.solvers import vectors as vk
+    rng = np.random.default_rng(n)
+    a, b, c, e = (rng.standard_normal((n, 3)) for _ in range(4))
+    diag = rng.random(n) + 0.5
+    assert vk.dot(a, b) == pytest.approx(np.sum(a * b), rel=1e-12, abs=1e-12)
+    out = np.empty((n, 3))
+    vk.fd_product(diag, a, b, c, 1e-3, out)
+    assert np.allclose(out, diag[:, None] * a - (b - c) / 1e-3, rtol=1e-12, atol=1e-9)
+    p, zr = a.copy(), b.copy()
+    s = vk.cg_update(p, zr, c, e, 0.7)
+    assert np.allclose(p, a + 0.7 * c, rtol=1e-14, atol=1e-14)
+    assert np.allclose(zr, b - 0.7 * e, rtol=1e-14, atol=1e-14)
+    assert s == pytest.approx(np.sum((b - 0.7 * e) ** 2), rel=1e-12)
+    d = a.copy()
+    m = vk.direction(d, b, 0.3)
+    assert np.allclose(d, b + 0.3 * a, rtol=1e-14, atol=1e-14)
+    assert m == np.abs(d).max()
+    frame = np.linalg.qr(rng.standard_normal((n, 3, 3)))[0]
+    zt, zn = np.empty(2 * n, np.float32), np.empty(n, np.float32)
+    vk.to_frames(frame, a, zt, zn)
+    assert np.allclose(zt.reshape(n, 2), np.einsum('nra,nr->na', frame[:, :, :2], a),
+                       rtol=1e-6, atol=1e-6)
+    assert np.allclose(zn, np.einsum('nr,nr->n', frame[:, :, 2], a), rtol=1e-6, atol=1e-6)
+    pinned = rng.random(n) < 0.3
+    back = np.full((n, 3), np.nan)
+    vk.from_frames(frame, zt, zn, pinned, back)
+    assert np.all(back[pinned] == 0.0)
+    assert np.allclose(back[~pinned], a[~pinned], rtol=1e-5, atol=1e-5)

@@ -1,0 +1,130 @@
+"""Compiled vector work of the implicit solver's conjugate gradients (:mod:`.implicit`).
+
+Each CG iteration of :meth:`.implicit.ImplicitSolver._cg` does, beside its one internal
+force and one preconditioner solve, about twenty passes over (n, 3) arrays: the finite
+difference's product, the updates of the iterate and residual, their dot products and
+norms, and the split preconditioner's change to each vertex's frame and back. In numpy
+each is a separate pass with its own temporary; at 160 x 160 they took ~2.5 ms an
+iteration, a fifth of the step (docs/performance.md). Here they are fused, a few passes
+an iteration.
+
+The sums are taken in :data:`CHUNKS` fixed chunks, summed in order: the same result for
+any number of threads (a ``prange`` reduction's order would follow the threads).
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..compiled import kernel
+
+__all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'to_frames', 'from_frames', 'warm']
+
+#: the fixed chunks of every sum
+CHUNKS = 64
+
+
+@kernel(parallel=True)
+def dot(a, b):
+    """sum(a * b) over two (n, 3) arrays."""
+    n = a.shape[0]
+    part = np.zeros(CHUNKS)
+    size = (n + CHUNKS - 1) // CHUNKS
+    for c in nb.prange(CHUNKS):
+        s = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
+        part[c] = s
+    return part.sum()
+
+
+@kernel(parallel=True)
+def fd_product(diag, d, fq, f, eps, out):
+    """out = diag d - (fq - f) / eps: ``(m / dt^2 + c / dt) d`` plus the elastic
+    Hessian's product by the forward difference of the internal force (``fq`` at
+    ``x + eps d``, ``f`` at x); diag (n,)."""
+    for i in nb.prange(d.shape[0]):
+        for k in range(3):
+            out[i, k] = diag[i] * d[i, k] - (fq[i, k] - f[i, k]) / eps
+
+
+@kernel(parallel=True)
+def cg_update(p, zr, d, ad, a):
+    """p += a d, zr -= a ad; returns |zr|^2 (the step of CG along d)."""
+    n = p.shape[0]
+    part = np.zeros(CHUNKS)
+    size = (n + CHUNKS - 1) // CHUNKS
+    for c in nb.prange(CHUNKS):
+        s = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            for k in range(3):
+                p[i, k] += a * d[i, k]
+                r = zr[i, k] - a * ad[i, k]
+                zr[i, k] = r
+                s += r * r
+        part[c] = s
+    return part.sum()
+
+
+@kernel(parallel=True)
+def direction(d, z, beta):
+    """d = z + beta d (the next conjugate direction); returns max |d| (the finite
+    difference's scale)."""
+    n = d.shape[0]
+    part = np.zeros(CHUNKS)
+    size = (n + CHUNKS - 1) // CHUNKS
+    for c in nb.prange(CHUNKS):
+        m = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            for k in range(3):
+                v = z[i, k] + beta * d[i, k]
+                d[i, k] = v
+                m = max(m, abs(v))
+        part[c] = m
+    return part.max()
+
+
+@kernel(parallel=True)
+def to_frames(frame, r, zt, zn):
+    """r (n, 3) in each vertex's frame (n, 3, 3; columns two tangent axes and the
+    normal): zt (2n,) its two tangential components, zn (n,) its normal one, both
+    float32 (what the split preconditioner's factors solve in)."""
+    for i in nb.prange(r.shape[0]):
+        t0 = frame[i, 0, 0] * r[i, 0] + frame[i, 1, 0] * r[i, 1] + frame[i, 2, 0] * r[i, 2]
+        t1 = frame[i, 0, 1] * r[i, 0] + frame[i, 1, 1] * r[i, 1] + frame[i, 2, 1] * r[i, 2]
+        nn = frame[i, 0, 2] * r[i, 0] + frame[i, 1, 2] * r[i, 1] + frame[i, 2, 2] * r[i, 2]
+        zt[2 * i] = t0
+        zt[2 * i + 1] = t1
+        zn[i] = nn
+
+
+@kernel(parallel=True)
+def from_frames(frame, zt, zn, pinned, out):
+    """The inverse of :func:`to_frames` into out (n, 3) float64, 0 on the ``pinned``
+    vertices."""
+    for i in nb.prange(out.shape[0]):
+        if pinned[i]:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+            out[i, 2] = 0.0
+            continue
+        t0 = np.float64(zt[2 * i])
+        t1 = np.float64(zt[2 * i + 1])
+        nn = np.float64(zn[i])
+        for k in range(3):
+            out[i, k] = frame[i, k, 0] * t0 + frame[i, k, 1] * t1 + frame[i, k, 2] * nn
+
+
+def warm() -> None:
+    """Compile every kernel here on tiny arrays (the cold start's warm-up,
+    ``core/warmup.py``), so that a node's first implicit step does not."""
+    a = np.zeros((2, 3))
+    b = np.ones((2, 3))
+    frame = np.tile(np.eye(3), (2, 1, 1))
+    dot(a, b)
+    fd_product(np.ones(2), a, b, a, 1.0, b)
+    cg_update(a, b.copy(), a, b, 0.5)
+    direction(a, b, 0.5)
+    zt, zn = np.zeros(4, np.float32), np.zeros(2, np.float32)
+    to_frames(frame, b, zt, zn)
+    from_frames(frame, zt, zn, np.zeros(2, np.bool_), a)
