@@ -62,6 +62,9 @@ def test_both_engines_sag_alike():
     assert math.isfinite(theirs)
     assert abs(ours - theirs) < 0.01 * theirs
     assert 0.03 < ours < 0.04
+    # the implicit solver, converged and linearised, at 1/60 s: the same statics
+    for iterations in (20, 1):
+        assert bench.settled_sag(10, 'implicit', iterations) == pytest.approx(ours, rel=1e-3)
 
 
 def test_paired_ratio_is_measured():
@@ -132,12 +135,15 @@ def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
     assert len(rows) == 2 and all(float(r.split('|')[6]) > 0 for r in rows)   # RTF
     for r in rows:                       # MuJoCo discrete beside it, and the RTF ratio
         cells = [c.strip() for c in r.split('|')[1:-1]]
-        assert len(cells) == 14
+        assert len(cells) == 16
         ours_fall, theirs_fall = (c.strip() for c in cells[12].split('/'))
-        assert float(ours_fall) > 0
+        assert float(ours_fall) > 0 and float(cells[14]) > 0     # the linearised solver
         if peer.available() is None:
             assert cells[9:12] == ['-', '-', '-'] and theirs_fall == '-' and cells[13] == '-'
+            assert cells[15] == '-'
         else:
+            theirs_ms = 1e3 / 60.0 / float(cells[10])           # from MuJoCo's RTF
+            assert float(cells[15]) == pytest.approx(theirs_ms / float(cells[14]), rel=0.02)
             ms, rtf, ratio = (float(c) for c in cells[9:12])
             assert ms > 0 and rtf > 0
             assert ratio == pytest.approx(float(cells[5]) / rtf, rel=0.02)

@@ -206,10 +206,13 @@ def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1,
     return float('nan') if theirs.bad() else float(np.median(ratios))
 
 
-def settled_sag(n: int, solver: str = 'explicit') -> float:
+def settled_sag(n: int, solver: str = 'explicit', iterations: int = 20) -> float:
     """Our centre sag [m] on the issue-6 scene after SETTLE_TIME s of damped settling (the
-    explicit solver at DT_FRACTION of its critical dt, the implicit one at 1/60 s)."""
+    explicit solver at DT_FRACTION of its critical dt, the implicit one at 1/60 s with
+    ``iterations`` Newton iterations at most, 1: linearised)."""
     sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY, solver=solver)
+    if solver == 'implicit':
+        sim.solver_iterations = iterations
     sim.step(int(round(SETTLE_TIME / sim.dt)))
     return -float(sim.positions[:, 2].min())
 
@@ -293,12 +296,14 @@ def part_peer(ours, sizes, sag_sizes, scene=ISSUE6, discrete=True):
         return
     print(f'\nCentre sag after {SETTLE_TIME} s of settling with damping rate '
           f'{SETTLE_RATE} 1/s (mass-proportional in both engines):\n')
-    _table(('N', 'ours [m]', 'ours, implicit at 1/60 s [m]', 'MuJoCo Euler [m]',
+    _table(('N', 'ours [m]', 'ours, implicit at 1/60 s [m]',
+            'ours, implicit linearised at 1/60 s [m]', 'MuJoCo Euler [m]',
             'MuJoCo discrete at 1/60 s [m]'))
     for n in sag_sizes:
         dt = scene_simulator(n).dt
         euler_dt = peer.largest_stable_dt(n, 'Euler', dt)
         print(f'| {n} | {settled_sag(n):.5f} | {settled_sag(n, "implicit"):.5f} | '
+              f'{settled_sag(n, "implicit", 1):.5f} | '
               f"{_f(peer.settled_sag(n, 'Euler', euler_dt, SETTLE_TIME, SETTLE_RATE), '.5f')}"
               f" | {_f(peer.settled_sag(n, 'discrete', 1 / 60, SETTLE_TIME, SETTLE_RATE), '.5f')}"
               ' |', flush=True)
@@ -773,11 +778,15 @@ def part_implicit(sizes, window_s: float = IMPLICIT_WINDOW_S):
           f'at every N. MuJoCo discrete at 1/60 s on the same sheet, timed over the same '
           f'steps of its own fall from flat; "x MuJoCo" = our implicit RTF / its RTF over '
           f'them, and over the first {FALL_STEPS} of them alone (the fall, the hard part '
-          f'for Newton).\n')
+          f'for Newton). "linearised": our implicit solver with solver.iterations 1 (one '
+          f'Newton step a step, as config/denim.yaml runs it), the same class of scheme as '
+          f'MuJoCo discrete (one linear solve a step in M + h D + h^2 K), over the same '
+          f'steps of its own fall.\n')
     _table(('scene', 'N', 'explicit ms/step', 'explicit RTF', 'implicit ms/step',
             'implicit RTF', 'Newton its/step', 'CG its/step', 'unconverged steps',
             'MuJoCo discrete ms/step', 'MuJoCo discrete RTF', 'x MuJoCo',
-            f'first {FALL_STEPS} steps: ours / MuJoCo ms', f'first {FALL_STEPS}: x MuJoCo'))
+            f'first {FALL_STEPS} steps: ours / MuJoCo ms', f'first {FALL_STEPS}: x MuJoCo',
+            'linearised ms/step', 'linearised x MuJoCo'))
     mujoco = peer.available() is not None
     for scene in (ISSUE6, STIFF):
         for n in sizes:
@@ -787,18 +796,10 @@ def part_implicit(sizes, window_s: float = IMPLICIT_WINDOW_S):
             t = time.perf_counter()
             ex.step(k)
             tex = (time.perf_counter() - t) / k
-            im = scene_simulator(n, scene=scene, solver='implicit')
-            im.step(2)
-            steps = int(round(window_s / im.dt))
-            ours = np.empty(steps)
-            its = cg = 0
-            for i in range(steps):
-                t = time.perf_counter()
-                im.step(1)
-                ours[i] = time.perf_counter() - t
-                r = im.solve_report
-                its, cg = its + r['iterations'], cg + r['cg_iterations']
+            im, its, cg, ours = _implicit_window(n, scene, window_s)
+            steps = len(ours)
             tim, fall = ours.mean(), ours[:FALL_STEPS].mean()
+            lin = _implicit_window(n, scene, window_s, iterations=1)[3].mean()
             mj = mj_fall = float('nan')
             if mujoco and peer.stable(n, 'discrete', im.dt, scene=scene):
                 # over the same steps of the same fall: a settling sheet is cheaper a step
@@ -817,8 +818,27 @@ def part_implicit(sizes, window_s: float = IMPLICIT_WINDOW_S):
                   f'{tim * 1e3:.1f} | {im.dt / tim:.2f} | {its / steps:.1f} | '
                   f'{cg / steps:.1f} | {im.solve_report["unconverged_steps"]} | '
                   f"{_f(mj * 1e3, '.1f')} | {_f(im.dt / mj, '.2f')} | {_f(mj / tim, '.3g')} | "
-                  f"{fall * 1e3:.3g} / {_f(mj_fall * 1e3, '.3g')} | {_f(mj_fall / fall, '.3g')} |",
-                  flush=True)
+                  f"{fall * 1e3:.3g} / {_f(mj_fall * 1e3, '.3g')} | "
+                  f"{_f(mj_fall / fall, '.3g')} | "
+                  f"{lin * 1e3:.3g} | {_f(mj / lin, '.3g')} |", flush=True)
+
+
+def _implicit_window(n: int, scene: peer.Scene, window_s: float, iterations: int = 20):
+    """Our implicit solver on the scene's N x N sheet at 1/60 s with ``iterations``
+    Newton iterations at most, timed step by step over ``window_s`` simulated after its
+    first 2 steps: (simulator, Newton iterations, CG iterations, seconds of each step)."""
+    im = scene_simulator(n, scene=scene, solver='implicit')
+    im.solver_iterations = iterations
+    im.step(2)
+    ours = np.empty(int(round(window_s / im.dt)))
+    its = cg = 0
+    for i in range(len(ours)):
+        t = time.perf_counter()
+        im.step(1)
+        ours[i] = time.perf_counter() - t
+        r = im.solve_report
+        its, cg = its + r['iterations'], cg + r['cg_iterations']
+    return im, its, cg, ours
 
 
 def main(argv=None):
