@@ -254,6 +254,37 @@ def test_a_settling_sheet_is_converged_to_its_load_not_to_its_last_imbalance():
     assert np.mean(cg[60:]) < 2.5, np.mean(cg[60:])
 
 
+def test_the_forcing_follows_how_well_the_linear_model_predicted(monkeypatch):
+    """Eisenstat & Walker's choice 1 (core/solvers/implicit.py): each step's first CG
+    solve at FIRST_FORCING; a later one at how far the last linear model missed, never
+    below the last forcing to the power 1.618 while that is above 0.1, nor above 0.5.
+    On issue 6's sheet settling (forces near linear over a step) the model is good and
+    the forcing falls well below 0.5: the solve converges superlinearly."""
+    import cosserat_ros.core.solvers.implicit as implicit
+    steps, cg, newton = [], implicit.ImplicitSolver._cg, implicit.ImplicitSolver._newton
+
+    def record_cg(self, *a):
+        steps[-1].append(a[-1])
+        return cg(self, *a)
+
+    def record_newton(self, *a, **k):
+        steps.append([])
+        return newton(self, *a, **k)
+    monkeypatch.setattr(implicit.ImplicitSolver, '_cg', record_cg)
+    monkeypatch.setattr(implicit.ImplicitSolver, '_newton', record_newton)
+    sim = scene_simulator(24, solver='implicit')
+    sim.step(60)
+    etas = [e for s in steps for e in s]
+    assert len(etas) > 60 and max(etas) <= implicit.FIRST_FORCING
+    assert min(etas) < 0.05
+    for s in steps:
+        if s:
+            assert s[0] == implicit.FIRST_FORCING
+        for a, b in zip(s, s[1:]):
+            if a ** implicit.GOLDEN > 0.1:
+                assert b >= a ** implicit.GOLDEN * (1 - 1e-12)
+
+
 def test_the_linearised_solver_takes_its_step_at_rest_too():
     """The linearised solver (iterations 1) asks for no tolerance: at rest it still takes
     its Newton step, so a settled sheet's imbalance goes to round-off. (With the
