@@ -653,3 +653,18 @@ def test_the_fused_vector_kernels_are_their_numpy_expressions(n):
     vk.from_frames(frame, zt, zn, pinned, back)
     assert np.all(back[pinned] == 0.0)
     assert np.allclose(back[~pinned], a[~pinned], rtol=1e-5, atol=1e-5)
+    mass, damp, dt = rng.random(n) + 0.1, rng.random(n), 0.02
+    out = np.empty((n, 3))
+    vk.inertia_residual(mass, damp, a, b, c, e, dt, out)
+    assert np.allclose(out, mass[:, None] / dt ** 2 * (a - b) + damp[:, None] / dt * (a - c)
+                       - e, rtol=1e-12, atol=1e-9)
+    assert vk.inertia_energy(mass, damp, a, b, c, dt) == pytest.approx(
+        0.5 / dt ** 2 * np.sum(mass[:, None] * (a - b) ** 2)
+        + 0.5 / dt * np.sum(damp[:, None] * (a - c) ** 2), rel=1e-12)
+    norms = np.linalg.norm(a, axis=1)
+    assert vk.residual_measure(a, diag) == pytest.approx((norms.max(), (norms / diag).max()),
+                                                         rel=1e-14)
+    # a NaN anywhere is not hidden by a max
+    a[n // 2, 1] = np.nan
+    assert all(np.isnan(vk.residual_measure(a, diag)))
+    assert vk.direction(a, b, 0.0) == np.inf

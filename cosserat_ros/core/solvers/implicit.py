@@ -127,10 +127,11 @@ from ..constants import VERTEX_CHUNK
 from ..energy import elastic_energy
 from ..terms import TERMS
 from ..terms.jet import model_scratch
-from ..terms.membrane import add_compression_product, compression_stress
+from ..terms.membrane import add_compression_product, compressed_faces, compression_stress
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .update import contact_list
-from .vectors import cg_update, direction, dot, fd_product, from_frames, to_frames
+from .vectors import (cg_update, direction, dot, fd_product, from_frames, inertia_energy,
+                      inertia_residual, residual_measure, to_frames)
 
 __all__ = ['ImplicitSolver', 'SolveReport']
 
@@ -288,7 +289,6 @@ class ImplicitSolver:
         self._fresh_cg = None
         self._face_blk = np.empty((model.mesh.n_faces, 3, 3, 3, 3))
         self._tens = np.empty((model.mesh.n_faces, 3))
-        self._tq = np.empty((model.mesh.n_faces, 2, 3))
         self._contacts = ObstacleConstraints(n)
         self._scratch = model_scratch(model)
         #: the last step's acceleration (v' - v) / dt, for the next step's predictor
@@ -611,8 +611,6 @@ class ImplicitSolver:
         the scale is set at ``xk``). Returns
         the residual there before the filter (at a fixed coordinate: the force its
         constraint exerts), or None if it is not finite."""
-        mass = coeff.mass[:, None]
-        damp = coeff.damp[:, None]
         rep = self.last
         held = pinned if con is None or not con.active else pinned | (con.mode == STICK)
 
@@ -622,8 +620,11 @@ class ImplicitSolver:
                 con.filter(a)
             return a
 
+        m1, c1 = coeff.mass, coeff.damp
+
         def raw(xx, ff):
-            r = mass / dt ** 2 * (xx - y) + damp / dt * (xx - xn) - ff
+            r = np.empty_like(xx)
+            inertia_residual(m1, c1, xx, y, xn, ff, dt, r)
             if drag is not None:
                 r += np.einsum('nij,nj->ni', drag, (xx - xn) / dt - vn)
             return r
@@ -633,12 +634,9 @@ class ImplicitSolver:
             return filt(raw(xx, out_f))
 
         def potential(xx):
-            d = xx - y
-            e = xx - xn
-            phi_ = (0.5 / dt ** 2 * np.sum(mass * d * d) + 0.5 / dt * np.sum(damp * e * e)
-                    + self._energy(coeff, xx))
+            phi_ = inertia_energy(m1, c1, xx, y, xn, dt) + self._energy(coeff, xx)
             if drag is not None:
-                q = e - dt * vn
+                q = xx - xn - dt * vn
                 phi_ += 0.5 / dt * float(np.einsum('ni,nij,nj->', q, drag, q))
             return float(phi_)
 
@@ -651,8 +649,8 @@ class ImplicitSolver:
 
         def measure(rr):
             """(max_i |r_i|, the residual in the tolerance's units) of residual rr."""
-            nr = np.linalg.norm(rr, axis=1)
-            return float(nr.max()), float(np.max(nr / denom))
+            a, b = residual_measure(rr, denom)
+            return float(a), float(b)
 
         def unmet(res_):
             # the linearised solver takes its one step whatever the residual (the
@@ -674,7 +672,6 @@ class ImplicitSolver:
                 rmax, res = measure(r)
         if not np.isfinite(res):
             return None                          # a non-finite force at the start
-        r0 = _norm(r)
         it = 0
         key = (dt, coeff.zeta, coeff.xi, coeff.phi, held.tobytes(), drag is None)
 
@@ -785,9 +782,10 @@ class ImplicitSolver:
         xscale = max(1.0, float(np.abs(xk).max()))
         diag1 = np.ascontiguousarray(diag[:, 0])
         fc = self.model.faces
-        tens, tq = self._tens, self._tq
+        tens = self._tens
         compression_stress(np.ascontiguousarray(xk), fc.corners, fc.dinv, fc.area,
                            coeff.zeta, tens)
+        squeezed = compressed_faces(tens)
         dn = float(np.abs(d).max())
         for k in range(self.cg_iterations):
             if dn == 0.0:
@@ -799,7 +797,7 @@ class ImplicitSolver:
             fd_product(diag1, d, fq, f, eps, ad)
             if drag_dt is not None:
                 ad += np.einsum('nij,nj->ni', drag_dt, d)
-            add_compression_product(self.model, tens, d, ad, tq)
+            add_compression_product(self.model, tens, squeezed, d, ad)
             filt(ad)
             curv = dot(d, ad)
             if not curv > 0.0:                   # negative curvature (or NaN): stop here

@@ -18,7 +18,8 @@ import numpy as np
 
 from ..compiled import kernel
 
-__all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'to_frames', 'from_frames', 'warm']
+__all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'inertia_residual',
+           'inertia_energy', 'residual_measure', 'to_frames', 'from_frames', 'warm']
 
 #: the fixed chunks of every sum
 CHUNKS = 64
@@ -69,7 +70,7 @@ def cg_update(p, zr, d, ad, a):
 @kernel(parallel=True)
 def direction(d, z, beta):
     """d = z + beta d (the next conjugate direction); returns max |d| (the finite
-    difference's scale)."""
+    difference's scale; inf where d holds a NaN)."""
     n = d.shape[0]
     part = np.zeros(CHUNKS)
     size = (n + CHUNKS - 1) // CHUNKS
@@ -79,9 +80,68 @@ def direction(d, z, beta):
             for k in range(3):
                 v = z[i, k] + beta * d[i, k]
                 d[i, k] = v
+                if v != v:
+                    m = np.inf
                 m = max(m, abs(v))
         part[c] = m
     return part.max()
+
+
+@kernel(parallel=True)
+def inertia_residual(mass, damp, x, y, xn, f, dt, out):
+    """out = m (x - y) / dt^2 + c (x - xn) / dt - f: the residual of the incremental
+    potential without the drag (:mod:`.implicit`); mass, damp (n,)."""
+    for i in nb.prange(x.shape[0]):
+        a = mass[i] / (dt * dt)
+        b = damp[i] / dt
+        for k in range(3):
+            out[i, k] = a * (x[i, k] - y[i, k]) + b * (x[i, k] - xn[i, k]) - f[i, k]
+
+
+@kernel(parallel=True)
+def inertia_energy(mass, damp, x, y, xn, dt):
+    """sum_i m_i |x_i - y_i|^2 / (2 dt^2) + c_i |x_i - xn_i|^2 / (2 dt): the incremental
+    potential's inertia and damping (:mod:`.implicit`)."""
+    n = x.shape[0]
+    part = np.zeros(CHUNKS)
+    size = (n + CHUNKS - 1) // CHUNKS
+    for c in nb.prange(CHUNKS):
+        s = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            d0 = x[i, 0] - y[i, 0]
+            d1 = x[i, 1] - y[i, 1]
+            d2 = x[i, 2] - y[i, 2]
+            e0 = x[i, 0] - xn[i, 0]
+            e1 = x[i, 1] - xn[i, 1]
+            e2 = x[i, 2] - xn[i, 2]
+            s += (0.5 * mass[i] / (dt * dt) * (d0 * d0 + d1 * d1 + d2 * d2)
+                  + 0.5 * damp[i] / dt * (e0 * e0 + e1 * e1 + e2 * e2))
+        part[c] = s
+    return part.sum()
+
+
+@kernel(parallel=True)
+def residual_measure(r, denom):
+    """(max_i |r_i|, max_i |r_i| / denom_i) of a residual r (n,3)."""
+    n = r.shape[0]
+    part = np.zeros((CHUNKS, 3))
+    size = (n + CHUNKS - 1) // CHUNKS
+    for c in nb.prange(CHUNKS):
+        m = 0.0
+        q = 0.0
+        bad = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            a = np.sqrt(r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2])
+            if a != a:
+                bad = 1.0
+            m = max(m, a)
+            q = max(q, a / denom[i])
+        part[c, 0] = m
+        part[c, 1] = q
+        part[c, 2] = bad
+    if part[:, 2].max() > 0.0:             # a NaN is not a residual: the caller stops
+        return np.nan, np.nan
+    return part[:, 0].max(), part[:, 1].max()
 
 
 @kernel(parallel=True)
@@ -125,6 +185,9 @@ def warm() -> None:
     fd_product(np.ones(2), a, b, a, 1.0, b)
     cg_update(a, b.copy(), a, b, 0.5)
     direction(a, b, 0.5)
+    inertia_residual(np.ones(2), np.ones(2), a, b, a, b, 0.1, a.copy())
+    inertia_energy(np.ones(2), np.ones(2), a, b, a, 0.1)
+    residual_measure(b, np.ones(2))
     zt, zn = np.zeros(4, np.float32), np.zeros(2, np.float32)
     to_frames(frame, b, zt, zn)
     from_frames(frame, zt, zn, np.zeros(2, np.bool_), a)

@@ -48,17 +48,29 @@ import numba as nb
 import numpy as np
 
 from ..compiled import kernel
-from ..material import bilinear, bilinear_forms
+from ..material import bilinear
 from .jet import gather, jet_energies, jet_fields, stencil_normal
 
 __all__ = ['energy', 'gradient', 'hessian_blocks', 'energy_from_fields', 'plate_matrix']
 
 
 def energy_from_fields(model, coeff, kap: np.ndarray, estab: np.ndarray) -> float:
-    """E_b [J] from the curvature changes kap (n,3) and hourglass energies estab (n,)."""
+    """E_b [J] from the curvature changes kap (n,3) and hourglass energies estab (n,):
+    sum_i A_i xi B(kap_i, kap_i) + estab_i."""
     v = model.vertices
-    return float(np.sum(v.dual_area * coeff.xi * bilinear_forms(v.ainv, kap, kap))
-                 + np.sum(estab))
+    return float(_energy_sum(v.dual_area, v.ainv, kap, estab, coeff.xi))
+
+
+@kernel()
+def _energy_sum(dual_area, ainv, kap, estab, xi):
+    s = 0.0
+    for i in range(kap.shape[0]):
+        k11 = kap[i, 0]
+        k12 = kap[i, 1]
+        k22 = kap[i, 2]
+        s += (dual_area[i] * xi * bilinear(ainv[i, 0], ainv[i, 1], ainv[i, 2], k11, k12, k22,
+                                           k11, k12, k22) + estab[i])
+    return s
 
 
 def energy(model, coeff, x: np.ndarray) -> float:
