@@ -664,7 +664,10 @@ def test_the_fused_vector_kernels_are_their_numpy_expressions(n):
     norms = np.linalg.norm(a, axis=1)
     assert vk.residual_measure(a, diag) == pytest.approx((norms.max(), (norms / diag).max()),
                                                          rel=1e-14)
-    # a NaN anywhere is not hidden by a max
+    # a NaN anywhere is not hidden by a max, nor an infinite start residual's inf / inf
+    big = np.full((n, 3), np.inf)
+    m, q = vk.residual_measure(big, np.full(n, np.inf))
+    assert m == np.inf and np.isnan(q)
     a[n // 2, 1] = np.nan
     assert all(np.isnan(vk.residual_measure(a, diag)))
     assert vk.direction(a, b, 0.0) == np.inf

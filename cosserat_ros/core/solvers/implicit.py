@@ -38,8 +38,10 @@ Newton's method:
   ``q^T A+ q <= 0`` (negative curvature, which the bending can still have: Steihaug
   truncation, Nocedal & Wright 2006, Alg. 7.1) with the iterate so far, or the steepest
   descent if there is none. The forcing is Eisenstat & Walker's (1996) choice 1: 0.5
-  (:data:`FIRST_FORCING`) at a step's first iteration, then how far the last iteration's
-  linear model missed, ``eta_k = | |r_k| - |r_{k-1} + alpha A+ p_{k-1}| | / |r_{k-1}|``,
+  (:data:`FIRST_FORCING`) at a step's first iteration (and after one whose direction
+  was not CG's iterate: steepest descent, or negative curvature at once), then how far
+  the last iteration's linear model missed,
+  ``eta_k = | |r_k| - |r_{k-1} + alpha A+ p_{k-1}| | / |r_{k-1}|``,
   kept above ``eta_{k-1}^1.618`` while that is above 0.1 (their safeguard) and above
   half the reduction the tolerance still asks for (no solve past it), at most 0.5.
   Where the forces are near linear over the step (a sheet settling) the model is good,
@@ -116,6 +118,7 @@ step's solve did (Newton iterations, CG iterations, residual, converged).
 """
 from __future__ import annotations
 
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -199,6 +202,10 @@ def _solve_thread():
         if not _SOLVE_THREAD:
             _SOLVE_THREAD.append(ThreadPoolExecutor(1, thread_name_prefix='cosserat-solve'))
         return _SOLVE_THREAD[0]
+
+
+# a child forked from a process that had the worker inherits it without its thread
+os.register_at_fork(after_in_child=_SOLVE_THREAD.clear)
 
 
 def _norm(a: np.ndarray) -> float:
@@ -484,11 +491,16 @@ class ImplicitSolver:
 
         def solve_split(r):
             to_frames(frame, np.ascontiguousarray(r), rt, rn)
-            # the two parts at once: SuperLU releases the GIL in its solve
-            normal = worker.submit(ln.solve, rn)
+            # the two parts at once: SuperLU releases the GIL in its solve (one after
+            # the other where the worker is gone: the interpreter shutting down)
+            try:
+                normal = worker.submit(ln.solve, rn)
+            except RuntimeError:
+                normal = None
             zt = lt.solve(rt)
+            zn = ln.solve(rn) if normal is None else normal.result()
             z = np.empty((n, 3))
-            from_frames(frame, zt, normal.result(), pinned, z)
+            from_frames(frame, zt, zn, pinned, z)
             return z
         return solve_split
 
@@ -770,7 +782,9 @@ class ImplicitSolver:
     def _cg(self, xk, f, r, diag, drag_dt, pinv, filt, coeff, eta):
         """Truncated PCG for ``A+ p = -r`` on the free coordinates (``filt`` zeroes the
         others; A+ = A with the membrane's compressed stress clamped, module docstring);
-        returns (p, iterations)."""
+        returns (p, iterations, zr): zr = -(r + A+ p), the linear model's residual at p
+        (the next forcing's measure), or None where p is not CG's iterate (negative
+        curvature at the first iteration: p is the preconditioned residual)."""
         fq, xe, ad = self._fq, self._xe, self._ad
         b = -r
         p = np.zeros_like(r)

@@ -122,7 +122,8 @@ def inertia_energy(mass, damp, x, y, xn, dt):
 
 @kernel(parallel=True)
 def residual_measure(r, denom):
-    """(max_i |r_i|, max_i |r_i| / denom_i) of a residual r (n,3)."""
+    """(max_i |r_i|, max_i |r_i| / denom_i) of a residual r (n,3), NaN where numpy's
+    max would give NaN (a NaN residual; the ratio also for inf / inf)."""
     n = r.shape[0]
     part = np.zeros((CHUNKS, 3))
     size = (n + CHUNKS - 1) // CHUNKS
@@ -132,16 +133,20 @@ def residual_measure(r, denom):
         bad = 0.0
         for i in range(c * size, min(n, (c + 1) * size)):
             a = np.sqrt(r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2])
+            b = a / denom[i]
             if a != a:
-                bad = 1.0
+                bad = 2.0
+            elif b != b:                    # inf / inf: an infinite start residual
+                bad = max(bad, 1.0)
             m = max(m, a)
-            q = max(q, a / denom[i])
+            q = max(q, b)
         part[c, 0] = m
         part[c, 1] = q
         part[c, 2] = bad
-    if part[:, 2].max() > 0.0:             # a NaN is not a residual: the caller stops
-        return np.nan, np.nan
-    return part[:, 0].max(), part[:, 1].max()
+    # a NaN is not a residual, as in numpy's max: the caller stops
+    bad = part[:, 2].max()
+    return (np.nan if bad == 2.0 else part[:, 0].max()), (np.nan if bad > 0.0
+                                                          else part[:, 1].max())
 
 
 @kernel(parallel=True)
@@ -188,6 +193,13 @@ def warm() -> None:
     inertia_residual(np.ones(2), np.ones(2), a, b, a, b, 0.1, a.copy())
     inertia_energy(np.ones(2), np.ones(2), a, b, a, 0.1)
     residual_measure(b, np.ones(2))
+    # the implicit solver's kernels in the terms (the bending energy's sum of the line
+    # search, the compression product of projected Newton)
+    from ..terms.bending import _energy_sum
+    from ..terms.membrane import _compression_scatter
+    _energy_sum(np.ones(2), b, a, np.ones(2), 1.0)
+    _compression_scatter(np.array([[0, 1, 0]]), np.zeros((1, 2, 2)), b, np.zeros(1, np.int64),
+                         a, b.copy())
     zt, zn = np.zeros(4, np.float32), np.zeros(2, np.float32)
     to_frames(frame, b, zt, zn)
     from_frames(frame, zt, zn, np.zeros(2, np.bool_), a)
