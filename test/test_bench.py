@@ -129,6 +129,10 @@ def test_implicit_part_runs_both_solvers_on_the_issue6_and_stiff_scenes(capsys):
     assert ex.solver_kind == 'explicit' and ex.dt == pytest.approx(0.9 * ex.critical_dt())
     assert STIFF.youngs_2d == 2e3 and ISSUE6.youngs_2d == 500.0
     assert np.array_equal(im.pinned, ex.pinned) and im.pinned.sum() == 24
+    # the linearised column's runs are linearised: one Newton iteration a step at most
+    lin, its, _, times = bench._implicit_window(6, STIFF, 0.25, iterations=1)
+    assert lin.solver_iterations == 1 and lin.solve_report['linearized']
+    assert 0 < its <= len(times)
     part_implicit([6], window_s=0.25)
     rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith('| issue6')
             or l.startswith('| stiff')]

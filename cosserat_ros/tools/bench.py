@@ -19,9 +19,9 @@ off, and how its extra cost grows with N):
    Euler (and on the issue-6 scene ``discrete``), at our dt and at its own largest stable
    dt, beside ours, with the ratio of step times measured in alternating batches; and the
    settled centre sag of both on the issue-6 scene (about 0.0354 m), ours with each
-   solver. The part ``implicit`` sets our implicit solver at 1/60 s beside our explicit
-   one and MuJoCo's ``discrete`` at 1/60 s, on the issue-6 and the stiff (E h = 2e3 N/m)
-   sheets.
+   solver. The part ``implicit`` sets our implicit solver at 1/60 s, converged and
+   linearised (``solver_iterations`` 1), beside our explicit one and MuJoCo's
+   ``discrete`` at 1/60 s, on the issue-6 and the stiff (E h = 2e3 N/m) sheets.
 3. ``node``: the installed ``cloth_node`` started as ``ros2 run`` starts it: process start to
    first mesh message with a cold and a warm compile cache, and the real-time factor of a
    40 x 40 cloth publishing at 30 Hz, beside the real-time factor of the same cloth

@@ -4,16 +4,16 @@ Each CG iteration of :meth:`.implicit.ImplicitSolver._cg` does, beside its one i
 force and one preconditioner solve, about twenty passes over (n, 3) arrays: the finite
 difference's product, the updates of the iterate and residual, their dot products and
 norms, and the split preconditioner's change to each vertex's frame and back. In numpy
-each is a separate pass with its own temporary; at 160 x 160 they took ~2.5 ms an
-iteration, a fifth of the step (docs/performance.md). Here they are fused, a few passes
-an iteration.
+each is a separate pass with its own temporary; at 160 x 160 they took ~2.5 ms a CG
+iteration (~16 ms of a 191 ms step; all of numpy's vector work between the kernels was
+~25% of it, docs/performance.md). Here they are fused, a few passes an iteration.
 
-The sums are taken in :data:`CHUNKS` fixed chunks, summed in order: the same result for
-any number of threads (a ``prange`` reduction's order would follow the threads).
+One thread each: these passes are bound by memory, and on two cores the parallel
+versions were no faster (160 x 160: 130-138 ms a step either way) while they took 7.9 s
+to compile cold against 3.0 (docs/performance.md). Their sums are in vertex order.
 """
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
 from ..compiled import kernel
@@ -21,140 +21,108 @@ from ..compiled import kernel
 __all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'inertia_residual',
            'inertia_energy', 'residual_measure', 'to_frames', 'from_frames', 'warm']
 
-#: the fixed chunks of every sum
-CHUNKS = 64
-
-
-@kernel(parallel=True)
+@kernel()
 def dot(a, b):
     """sum(a * b) over two (n, 3) arrays."""
-    n = a.shape[0]
-    part = np.zeros(CHUNKS)
-    size = (n + CHUNKS - 1) // CHUNKS
-    for c in nb.prange(CHUNKS):
-        s = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
-        part[c] = s
-    return part.sum()
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
+    return s
 
 
-@kernel(parallel=True)
+@kernel()
 def fd_product(diag, d, fq, f, eps, out):
     """out = diag d - (fq - f) / eps: ``(m / dt^2 + c / dt) d`` plus the elastic
     Hessian's product by the forward difference of the internal force (``fq`` at
     ``x + eps d``, ``f`` at x); diag (n,)."""
-    for i in nb.prange(d.shape[0]):
+    for i in range(d.shape[0]):
         for k in range(3):
             out[i, k] = diag[i] * d[i, k] - (fq[i, k] - f[i, k]) / eps
 
 
-@kernel(parallel=True)
+@kernel()
 def cg_update(p, zr, d, ad, a):
     """p += a d, zr -= a ad; returns |zr|^2 (the step of CG along d)."""
-    n = p.shape[0]
-    part = np.zeros(CHUNKS)
-    size = (n + CHUNKS - 1) // CHUNKS
-    for c in nb.prange(CHUNKS):
-        s = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            for k in range(3):
-                p[i, k] += a * d[i, k]
-                r = zr[i, k] - a * ad[i, k]
-                zr[i, k] = r
-                s += r * r
-        part[c] = s
-    return part.sum()
+    s = 0.0
+    for i in range(p.shape[0]):
+        for k in range(3):
+            p[i, k] += a * d[i, k]
+            r = zr[i, k] - a * ad[i, k]
+            zr[i, k] = r
+            s += r * r
+    return s
 
 
-@kernel(parallel=True)
+@kernel()
 def direction(d, z, beta):
     """d = z + beta d (the next conjugate direction); returns max |d| (the finite
     difference's scale; inf where d holds a NaN)."""
-    n = d.shape[0]
-    part = np.zeros(CHUNKS)
-    size = (n + CHUNKS - 1) // CHUNKS
-    for c in nb.prange(CHUNKS):
-        m = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            for k in range(3):
-                v = z[i, k] + beta * d[i, k]
-                d[i, k] = v
-                if v != v:
-                    m = np.inf
-                m = max(m, abs(v))
-        part[c] = m
-    return part.max()
+    m = 0.0
+    for i in range(d.shape[0]):
+        for k in range(3):
+            v = z[i, k] + beta * d[i, k]
+            d[i, k] = v
+            if v != v:
+                m = np.inf
+            m = max(m, abs(v))
+    return m
 
 
-@kernel(parallel=True)
+@kernel()
 def inertia_residual(mass, damp, x, y, xn, f, dt, out):
     """out = m (x - y) / dt^2 + c (x - xn) / dt - f: the residual of the incremental
     potential without the drag (:mod:`.implicit`); mass, damp (n,)."""
-    for i in nb.prange(x.shape[0]):
+    for i in range(x.shape[0]):
         a = mass[i] / (dt * dt)
         b = damp[i] / dt
         for k in range(3):
             out[i, k] = a * (x[i, k] - y[i, k]) + b * (x[i, k] - xn[i, k]) - f[i, k]
 
 
-@kernel(parallel=True)
+@kernel()
 def inertia_energy(mass, damp, x, y, xn, dt):
     """sum_i m_i |x_i - y_i|^2 / (2 dt^2) + c_i |x_i - xn_i|^2 / (2 dt): the incremental
     potential's inertia and damping (:mod:`.implicit`)."""
-    n = x.shape[0]
-    part = np.zeros(CHUNKS)
-    size = (n + CHUNKS - 1) // CHUNKS
-    for c in nb.prange(CHUNKS):
-        s = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            d0 = x[i, 0] - y[i, 0]
-            d1 = x[i, 1] - y[i, 1]
-            d2 = x[i, 2] - y[i, 2]
-            e0 = x[i, 0] - xn[i, 0]
-            e1 = x[i, 1] - xn[i, 1]
-            e2 = x[i, 2] - xn[i, 2]
-            s += (0.5 * mass[i] / (dt * dt) * (d0 * d0 + d1 * d1 + d2 * d2)
-                  + 0.5 * damp[i] / dt * (e0 * e0 + e1 * e1 + e2 * e2))
-        part[c] = s
-    return part.sum()
+    s = 0.0
+    for i in range(x.shape[0]):
+        d0 = x[i, 0] - y[i, 0]
+        d1 = x[i, 1] - y[i, 1]
+        d2 = x[i, 2] - y[i, 2]
+        e0 = x[i, 0] - xn[i, 0]
+        e1 = x[i, 1] - xn[i, 1]
+        e2 = x[i, 2] - xn[i, 2]
+        s += (0.5 * mass[i] / (dt * dt) * (d0 * d0 + d1 * d1 + d2 * d2)
+              + 0.5 * damp[i] / dt * (e0 * e0 + e1 * e1 + e2 * e2))
+    return s
 
 
-@kernel(parallel=True)
+@kernel()
 def residual_measure(r, denom):
     """(max_i |r_i|, max_i |r_i| / denom_i) of a residual r (n,3), NaN where numpy's
     max would give NaN (a NaN residual; the ratio also for inf / inf)."""
-    n = r.shape[0]
-    part = np.zeros((CHUNKS, 3))
-    size = (n + CHUNKS - 1) // CHUNKS
-    for c in nb.prange(CHUNKS):
-        m = 0.0
-        q = 0.0
-        bad = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            a = np.sqrt(r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2])
-            b = a / denom[i]
-            if a != a:
-                bad = 2.0
-            elif b != b:                    # inf / inf: an infinite start residual
-                bad = max(bad, 1.0)
-            m = max(m, a)
+    m = 0.0
+    q = 0.0
+    for i in range(r.shape[0]):
+        a = np.sqrt(r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2])
+        b = a / denom[i]
+        # a NaN is not a residual, as in numpy's max (numba's max would skip it): the
+        # caller stops; inf / inf is an infinite start residual's
+        if a != a:
+            return np.nan, np.nan
+        if b != b:
+            q = np.nan
+        m = max(m, a)
+        if q == q:
             q = max(q, b)
-        part[c, 0] = m
-        part[c, 1] = q
-        part[c, 2] = bad
-    # a NaN is not a residual, as in numpy's max: the caller stops
-    bad = part[:, 2].max()
-    return (np.nan if bad == 2.0 else part[:, 0].max()), (np.nan if bad > 0.0
-                                                          else part[:, 1].max())
+    return m, q
 
 
-@kernel(parallel=True)
+@kernel()
 def to_frames(frame, r, zt, zn):
     """r (n, 3) in each vertex's frame (n, 3, 3; columns two tangent axes and the
     normal): zt (2n,) its two tangential components, zn (n,) its normal one, both
     float32 (what the split preconditioner's factors solve in)."""
-    for i in nb.prange(r.shape[0]):
+    for i in range(r.shape[0]):
         t0 = frame[i, 0, 0] * r[i, 0] + frame[i, 1, 0] * r[i, 1] + frame[i, 2, 0] * r[i, 2]
         t1 = frame[i, 0, 1] * r[i, 0] + frame[i, 1, 1] * r[i, 1] + frame[i, 2, 1] * r[i, 2]
         nn = frame[i, 0, 2] * r[i, 0] + frame[i, 1, 2] * r[i, 1] + frame[i, 2, 2] * r[i, 2]
@@ -163,11 +131,11 @@ def to_frames(frame, r, zt, zn):
         zn[i] = nn
 
 
-@kernel(parallel=True)
+@kernel()
 def from_frames(frame, zt, zn, pinned, out):
     """The inverse of :func:`to_frames` into out (n, 3) float64, 0 on the ``pinned``
     vertices."""
-    for i in nb.prange(out.shape[0]):
+    for i in range(out.shape[0]):
         if pinned[i]:
             out[i, 0] = 0.0
             out[i, 1] = 0.0
