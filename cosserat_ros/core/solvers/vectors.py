@@ -21,6 +21,7 @@ from ..compiled import kernel
 __all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'inertia_residual',
            'inertia_energy', 'residual_measure', 'to_frames', 'from_frames', 'warm']
 
+
 @kernel()
 def dot(a, b):
     """sum(a * b) over two (n, 3) arrays."""
