@@ -50,7 +50,7 @@ Newton's method:
   that misses. Against the earlier ``min(0.5, sqrt(|r| / |r_0|))``: issue 6 at 160 x
   160, 120 steps of the fall and settling, 6.59 -> 5.89 CG and 2.14 -> 1.93 Newton
   iterations a step; the stiff sheet 4.97 -> 4.24; the converged denim swing at 40 x 40
-  98 -> 86 ms a step, 120 steps (docs/performance.md);
+  98 -> 86 ms a step under the profiler, 120 steps (docs/performance.md);
 * a backtracking (Armijo) line search on Phi, so that every iteration lowers the
   potential (no overshoot, no divergence from a too-long Newton step at large dt); a
   full step whose change of Phi is below Phi's round-off (1e-11 of it, near the
