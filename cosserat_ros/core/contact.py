@@ -111,6 +111,12 @@ C_WIDTH = 9
 #: distance reported where a mesh's field has no sample (outside its grid): no contact
 FAR = 1e30
 
+#: a vertex's ``Control.contact`` row without contact: no force, no obstacle (-1), no gap
+#: (FAR); where a step starts, a reset and a pinned vertex write it
+NO_CONTACT = np.zeros(C_WIDTH)
+NO_CONTACT[[C_ID, C_ID2]] = -1.0
+NO_CONTACT[C_GAP] = FAR
+
 #: most pushes of one vertex back onto contact layers after its move (:func:`push_out`):
 #: in a corner each push off one surface takes the vertex back into the other's layer by
 #: a fraction of what it moved (the alternating projections onto two half-spaces: cos^2 of

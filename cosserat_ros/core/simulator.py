@@ -750,12 +750,7 @@ class ClothSimulator:
     def _clear_contacts(self) -> None:
         """Forget the last step's contact output: each vertex's contact row (force, none)
         and the corners' and edges' forces (:mod:`.features`)."""
-        c = self.control.contact
-        c[:, C.C_FORCE:C.C_FORCE + 3] = 0.0
-        c[:, C.C_ID] = -1.0
-        c[:, C.C_GAP] = C.FAR
-        c[:, C.C_FORCE2:C.C_FORCE2 + 3] = 0.0
-        c[:, C.C_ID2] = -1.0
+        self.control.contact[:] = C.NO_CONTACT
         self._features.start()
 
     def internal_forces(self) -> np.ndarray:

@@ -88,10 +88,8 @@ class Control(NamedTuple):
         """No force, pin or obstacle on n vertices; room for the air force of ``faces``
         faces (0: the controls of a step without air)."""
         from .air import AIR_WIDTH
-        from .contact import C_GAP, C_ID, C_ID2, C_WIDTH, FAR, WIDTH
-        contact = np.zeros((n, C_WIDTH))
-        contact[:, [C_ID, C_ID2]] = -1.0
-        contact[:, C_GAP] = FAR
+        from .contact import NO_CONTACT, WIDTH
+        contact = np.tile(NO_CONTACT, (n, 1))
         return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH),
                    np.zeros((faces, 3)), np.zeros(3), np.zeros(n, dtype=bool),
                    np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),

@@ -39,8 +39,7 @@ import math
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import (ALL, C_FORCE, C_FORCE2, C_GAP, C_ID, C_ID2, FAR, near_mask, push_out,
-                       resolve)
+from ..contact import ALL, C_WIDTH, NO_CONTACT, near_mask, push_out, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -126,15 +125,8 @@ def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2, backward):
     if control.pinned[i]:
         # a pinned or held vertex moves as prescribed, in no contact: its row is cleared
         # (a vertex pinned while resting on an obstacle kept reporting its weight there)
-        control.contact[i, C_FORCE] = 0.0
-        control.contact[i, C_FORCE + 1] = 0.0
-        control.contact[i, C_FORCE + 2] = 0.0
-        control.contact[i, C_ID] = -1.0
-        control.contact[i, C_GAP] = FAR
-        control.contact[i, C_FORCE2] = 0.0
-        control.contact[i, C_FORCE2 + 1] = 0.0
-        control.contact[i, C_FORCE2 + 2] = 0.0
-        control.contact[i, C_ID2] = -1.0
+        for j in range(C_WIDTH):
+            control.contact[i, j] = NO_CONTACT[j]
         return 0.0, 0.0
     ob = control.obstacles
     th = control.contact_params[0]
