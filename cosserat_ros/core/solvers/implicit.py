@@ -211,8 +211,9 @@ os.register_at_fork(after_in_child=_SOLVE_THREAD.clear)
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
     worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
-    80 sheet: 0.6 -> 5.8 ms an internal force inside the solve)."""
-    return float(np.sqrt(np.sum(a * a)))
+    80 sheet: 0.6 -> 5.8 ms an internal force inside the solve); a compiled sum, no
+    temporary (:func:`.vectors.dot`)."""
+    return float(np.sqrt(dot(a, a)))
 
 
 @dataclass
@@ -792,7 +793,7 @@ class ImplicitSolver:
         z = pinv(z_r)
         d = z.copy()
         rz = dot(z_r, z)
-        bnorm = float(np.sqrt(dot(b, b)))
+        bnorm = _norm(b)
         xscale = max(1.0, float(np.abs(xk).max()))
         diag1 = np.ascontiguousarray(diag[:, 0])
         fc = self.model.faces
