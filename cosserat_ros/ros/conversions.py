@@ -144,19 +144,18 @@ def mesh_marker_array(positions: np.ndarray, faces: np.ndarray, vertex_colors: n
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     corners = faces.reshape(-1)
     # np.take, not positions[corners]: numpy's fancy indexing of rows is much slower
-    markers = (1 + (edges is not None) + (pinned is not None and len(pinned) > 0)
-               + (handles is not None and len(handles) > 0) + len(delete))
+    drawn = optional_markers(edges, pinned, handles)
     w = CdrWriter()
-    w.prim('I', markers)
+    w.prim('I', 1 + len(drawn) + len(delete))
     _marker(w, sec, nanosec, frame_id, MESH_ID, TRIANGLE_LIST, 1.0, (1.0, 1.0, 1.0, 1.0),
             np.take(positions, corners, axis=0), np.take(vertex_colors, corners, axis=0))
-    if edges is not None:
+    if WIREFRAME_ID in drawn:
         _marker(w, sec, nanosec, frame_id, WIREFRAME_ID, LINE_LIST, 0.002, wire_color,
                 np.take(positions, edges.reshape(-1), axis=0), None)
-    if pinned is not None and len(pinned) > 0:
+    if PINS_ID in drawn:
         _marker(w, sec, nanosec, frame_id, PINS_ID, SPHERE_LIST, pin_size, pin_color,
                 positions[pinned], None)
-    if handles is not None and len(handles) > 0:
+    if HANDLES_ID in drawn:
         _marker(w, sec, nanosec, frame_id, HANDLES_ID, SPHERE_LIST, 3 * pin_size,
                 handle_color, np.ascontiguousarray(handles, dtype=np.float64), None)
     for mid in delete:

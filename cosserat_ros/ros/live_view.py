@@ -56,10 +56,9 @@ SERVICE_TIMEOUT = 2.0
 #: one is refused before it is parsed, which would hold the interpreter's lock)
 MAX_REQUEST_BYTES = 4096
 #: the most calls waiting for the node's thread; more are refused as busy
+MAX_PENDING = 16
 #: the scene's entities besides the cloth, deleted in each frame that does not show them
 OPTIONAL_ENTITIES = frozenset(('handles', 'obstacles'))
-
-MAX_PENDING = 16
 #: messages the server keeps for a client that does not read (the SDK's default, 1024,
 #: is ~1 GB of scenes at 160 x 160)
 BACKLOG = 16
