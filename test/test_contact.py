@@ -595,6 +595,63 @@ def test_the_implicit_solver_rests_a_cloth_in_a_corner_without_a_rebound():
                                atol=1e-3 * np.linalg.norm(weight))
 
 
+def _sliding_into_a_wall(depth, wall_speed):
+    """The 0.1 m sheet at the implicit solver's frame step, on a frictionless floor,
+    ``depth`` of the contact layer inside it, sliding at 0.3 m/s into a frictionless wall
+    (the plane x = 0 moving at ``wall_speed`` along +x, towards the sheet) 2 mm off its
+    layer: (sim, the wall's id, the row of vertices nearest the wall)."""
+    sim = _sim(6, 0.1, solver='implicit')
+    sim.gravity = np.array([0.0, 0.0, -G])
+    sim.add_obstacle('plane', friction=0.0, name='floor')
+    wall = sim.add_obstacle('plane', point=(0, 0, 0), normal=(1, 0, 0), friction=0.0,
+                            name='wall')
+    s = math.sqrt(0.5)                                     # +z turned onto +x
+    sim.set_obstacle_pose(wall, (0, 0, 0), (0, s, 0, s), linear_velocity=(wall_speed, 0, 0))
+    th = sim.contact_thickness
+    x = sim.mesh.vertices.copy()
+    x[:, 0] += 0.05 + th + 0.002
+    x[:, 2] = th * (1.0 - depth)
+    sim.set_positions(x)
+    v = np.zeros_like(x)
+    v[:, 0] = -0.3
+    sim.set_velocities(v)
+    return sim, wall, x[:, 0] < x[:, 0].min() + 1e-9
+
+
+def test_an_implicit_corner_keeps_a_vertex_inside_the_floors_layer_at_its_depth():
+    """The sheet slides inside the floor's layer (half its depth) into a wall: the row
+    that reaches the wall's layer sticks in the corner, moved onto the wall's layer along
+    the floor, not pushed up onto the floor's layer as well: that push had become an
+    upward velocity of 0.06 m/s (1 mm in 1/60 s) and a negative dissipation of 2.6e-5 J,
+    energy from nowhere (core/solvers/implicit_contact.py, ``_corner``)."""
+    sim, wall, edge = _sliding_into_a_wall(0.5, 0.0)
+    e0 = sim.energy()['total']
+    for _ in range(3):
+        sim.step(1)
+        e = sim.energy()
+        assert np.abs(sim.velocities[:, 2]).max() < 1e-2
+        assert e['dissipated'] >= 0.0
+        assert e['total'] - e0 <= e['external_work'] - e['dissipated'] + 1e-9, e
+        assert sim.positions[edge, 0] == pytest.approx(sim.contact_thickness, abs=1e-9)
+
+
+def test_an_implicit_corner_meets_a_moving_wall_where_it_ends_the_step():
+    """A wall moving at 0.05 m/s meets the sheet sliding into it: the corner row ends
+    each step on the wall's layer at the wall's pose after the step, and moves with it.
+    It had been put on the layer of the wall's pose before the step, and so ended every
+    step 0.83 mm (the wall's move in 1/60 s) inside it."""
+    speed = 0.05
+    sim, wall, edge = _sliding_into_a_wall(0.0, speed)
+    th = sim.contact_thickness
+    for k in range(1, 5):
+        sim.step(1)
+        assert sim.positions[edge, 0] == pytest.approx(speed * k * FRAME + th, abs=1e-9)
+        if k > 1:
+            np.testing.assert_allclose(sim.velocities[edge, 0], speed, atol=1e-9)
+    e = sim.energy()
+    assert e['external_work'] > 0.0 and e['dissipated'] > 0.0      # the wall pushed
+
+
 def test_forget_clears_the_implicit_contacts_that_carry_over():
     """A reset (or set_positions, a divergence's restore) starts the implicit solver as a
     fresh one: no vertex keeps the last step's contact mode, normal force or friction."""
