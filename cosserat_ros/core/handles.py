@@ -20,8 +20,10 @@ force the handle exerts on it over the step is what the update needs beyond f::
 included once it acts on the vertex, is in f). The handle's wrench is the sum of r over
 its vertices and its torque ``sum (x_i - p) x r_i`` about the handle origin. At rest it
 carries the weight of what hangs from it. A break force F_b shares the grip equally:
-a vertex whose |r| exceeds ``F_b / k`` (k vertices grasped) slips out, after the call in
-which it did (calls last at most :data:`BREAK_CHECK` while a handle has a break force).
+a vertex whose |r| exceeds ``F_b / k`` (k vertices grasped) at the end of a call of the
+compiled step slips out. The grip is sampled, not watched: while a handle has a break
+force a call lasts at most :data:`BREAK_CHECK` (every step of the implicit solver at
+1/60 s), and a pull that rises above the share and falls back within one call holds.
 """
 from __future__ import annotations
 
