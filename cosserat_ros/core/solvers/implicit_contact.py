@@ -59,8 +59,8 @@ vertex inside the layer at the step's start is held where it is, not pushed out 
 solve: :func:`..contact.push_out` puts it back on the layer afterwards, a position
 change without velocity as in the explicit update. Each vertex takes the obstacle whose
 linearised gap is the most negative; a sliding vertex that a solve takes into a second
-obstacle's layer (a corner, its normal at least :data:`SIN_CORNER` from the first's)
-sticks where it is moved onto the second's layer along the first's constraint plane
+obstacle's layer (a corner, its normal at least :data:`SIN_CORNER` from parallel to the
+first's) sticks where it is moved onto the second's layer without entering the first's
 (``ObstacleConstraints._corner``; this step: sliding along the corner's line is the next
 step's), and its contact force is reported as the first obstacle's.
 
@@ -287,15 +287,15 @@ class ObstacleConstraints:
             q, s, a = q[moving], s[moving], a[moving]
             self.friction[q] = -(ob[self.row[q], MU_K] * fn[q] / a)[:, None] * s
         # a sliding vertex the solve took into a second obstacle's layer (a corner: the
-        # floor and a wall) sticks where it is put back on both layers: its one
-        # constraint held it on the first only, and a push onto the second after the
-        # solve moved it without its neighbours (a frictionless corner's cloth rebounded,
-        # its strain energy rising by 4e-3 J in a step)
+        # floor and a wall) sticks on the second's layer, out of the first's (``_corner``):
+        # its one constraint held it on the first only, and a push onto the second after
+        # the solve moved it without its neighbours (a frictionless corner's cloth
+        # rebounded, its strain energy rising by 4e-3 J in a step)
         sl = self.mode == SLIDE
         if sl.any():
             two = self._find(xn, xk, sl, control, dt, skip=self.row)
             q = np.flatnonzero(two)
-            q = q[self._corner(q, xn, xk, dt, control.contact_params[0])]
+            q = q[self._corner(q, xn, xk, dt, control)]
             if len(q):
                 changed = True
                 self.mode[q] = STICK
@@ -311,39 +311,70 @@ class ObstacleConstraints:
             self.target[new] = self._onto_plane(xn, xk, dt, control.contact_params[0], new)
         return changed
 
-    def _corner(self, q, xn, xk, dt, th) -> np.ndarray:
+    def _corner(self, q, xn, xk, dt, control) -> np.ndarray:
         """Of the sliding vertices ``q`` that the solve took into a second obstacle's
         layer (its distance, normal and velocity in the ``_d, _n, _vo`` scratch,
-        :meth:`_find`), those in a corner, the two normals at least :data:`SIN_CORNER`
-        apart (a mask over q). Each sticks where it is moved from ``xk`` along the part
-        of the second's normal in the first's plane, ``t = n2 - (n1 . n2) n1``, until the
-        second's gap is closed, as a STICK constraint closes it (module docstring)::
+        :meth:`_find`), those that stick in a corner (a mask over q), and where: the
+        nearest place that closes the second's gap as a STICK constraint closes it
+        (module docstring), ``g2 = max(d2 - th, 0) + n2 . (xk - x - v2 dt) < 0`` made 0,
+        and does not enter the first's layer (whose constraint only pushes: the vertex
+        may leave it). With ``c = n1 . n2``:
 
-            x' = xk - g2 t / |t|^2,    g2 = max(d2 - th, 0) + n2 . (xk - x - v2 dt) < 0
+        * ``c >= 0`` (a right angle, or an obtuse crease, a floor meeting a ramp): straight
+          out of the second's layer, ``x' = xk - g2 n2``; the first's gap grows by
+          ``-c g2 >= 0`` (the vertex rides up the ramp);
+        * ``c < 0`` (a wedge narrower than a right angle): along the part of n2 in the
+          first's plane, ``t = n2 - c n1``, ``x' = xk - g2 t / |t|^2``, a move of
+          ``|g2| / sin``; straight out would enter the first's layer.
 
-        so that the first's constraint still holds (a vertex it held inside its layer
-        stays at its depth: a push onto that layer would become velocity, 0.06 m/s up
-        from half a 2 mm layer at 1/60 s), the second is met where it is at the step's
-        end (a wall moving at v2 pushes the vertex with it, not from where the wall began
-        the step), and a vertex inside the second's layer stays at its depth there too
-        (one moving out of it, g2 >= 0, is no corner). Its obstacle velocity becomes
-        ``v1 + (n2 . (v2 - v1)) t / |t|^2``, whose part along each normal is that
-        obstacle's (the ledger's work, :meth:`finish`). Nearer parallel, the first's
-        plane keeps the vertex within ``|v| dt sin(angle)`` of the second's layer, which
-        the correction after the solve answers; the move along t would be the gap over
-        sin^2 of the angle."""
+        Either way a vertex the first held inside its layer stays at its depth (a push
+        onto that layer would become velocity: 0.06 m/s from half a 2 mm layer at 1/60
+        s; the correction after the solve puts it back without velocity), the second is
+        met where it is at the step's end (a wall moving at v2 pushes the vertex with it),
+        and a vertex inside the second's layer stays at its depth there. Its obstacle
+        velocity for the ledger (:meth:`finish`) becomes ``v1 + (n2 . (v2 - v1)) u / (n2
+        . u)`` with u the move's direction, whose part along n2 is the second's.
+
+        No corner where the normals are within :data:`SIN_CORNER` of parallel: nearly the
+        same (a seam between two flush obstacles: the first's plane keeps the vertex near
+        the second's layer, and sticking there would catch a frictionless cloth) or
+        nearly opposite (a pinch: no place outside both layers is near; the move along t
+        would be the gap over the sine); the vertex slides on, and the correction after
+        the solve answers the second. Where the corner's place is inside a third
+        obstacle's layer (the inside corner of a box), the vertex sticks where
+        :func:`..contact.push_out` puts it out of every layer (at the step's start
+        poses), as before this rule."""
+        th = control.contact_params[0]
         n1, n2, v2 = self.normal[q], self._n[q], self._vo[q]
+        second = self._k[q]
         c = np.sum(n1 * n2, 1)
-        s2 = 1.0 - c * c                          # |t|^2, sin^2 of the angle
+        s2 = 1.0 - c * c                          # sin^2 of the angle
         g2 = (np.maximum(self._d[q] - th, 0.0)
               + np.sum(n2 * (xk[q] - xn[q] - dt * v2), 1))
-        ok = (s2 >= SIN_CORNER ** 2) & (g2 < 0.0)
-        q, n1, n2, v2, c, s2, g2 = q[ok], n1[ok], n2[ok], v2[ok], c[ok], s2[ok], g2[ok]
-        t = n2 - c[:, None] * n1
-        self.target[q] = xk[q] - (g2 / s2)[:, None] * t
+        # one moving out of the second is no corner, nor one between near-parallel normals
+        ok = (g2 < 0.0) & (s2 >= SIN_CORNER ** 2)
+        q, n1, n2, v2, second, c, s2, g2 = (a[ok] for a in (q, n1, n2, v2, second, c, s2, g2))
+        wedge = c < 0.0
+        u = np.where(wedge[:, None], n2 - c[:, None] * n1, n2)     # the move's direction
+        nu = np.where(wedge, s2, 1.0)                              # n2 . u
+        self.target[q] = xk[q] - (g2 / np.maximum(nu, 1e-300))[:, None] * u
         v1 = self.vo[q]
-        self.vo[q] = v1 + (np.sum(n2 * (v2 - v1), 1) / s2)[:, None] * t
-        return ok
+        self.vo[q] = v1 + (np.sum(n2 * (v2 - v1), 1) / np.maximum(nu, 1e-300))[:, None] * u
+        if len(q):
+            # a corner's place inside a third obstacle's layer: out of every layer
+            mask = np.zeros(len(xk), bool)
+            mask[q] = True
+            self._find(xn, self.target, mask, control, dt, skip=self.row)
+            third = (self._k[q] >= 0) & (self._k[q] != second)
+            if third.any():
+                rest = q[third]
+                t = xk.copy()
+                push_list(rest, t, control.obstacles, control.sdf_meta, control.sdf_data, th)
+                self.target[rest] = t[rest]
+                self.vo[rest] = v1[third]
+        out = np.zeros(len(ok), bool)
+        out[np.flatnonzero(ok)] = True
+        return out
 
     # ------------------------------------------------------------------ the end
     def finish(self, xn, xk, force, control, dt):
