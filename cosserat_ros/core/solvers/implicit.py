@@ -196,8 +196,10 @@ def _solve_thread():
     use) that solves the split preconditioner's normal part while the calling thread
     solves its tangential part: SuperLU's solve releases the GIL (scipy keeps its state
     per thread), and the two solves overlap on two cores. 160 x 160, issue 6's P: 10.6 ms
-    the pair against 13.6 one after the other (the tangential alone 8.0; the two share
-    the memory bus, and SuperLU takes the GIL back to allocate)."""
+    the pair against 13.6 one after the other (the tangential alone 8.0); on another
+    host 7.0-7.3 against 8.6-9.6 (5.0). The overlap is not whole because SuperLU takes
+    the GIL back to allocate its result: two GIL-free compiled solves of the same
+    factors overlapped to within 0.4 ms (docs/performance.md, ninth session)."""
     with _SOLVE_LOCK:
         if not _SOLVE_THREAD:
             _SOLVE_THREAD.append(ThreadPoolExecutor(1, thread_name_prefix='cosserat-solve'))
