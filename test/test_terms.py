@@ -7,7 +7,7 @@ import trimesh
 
 from cosserat_ros.core.energy import elastic_energy
 from cosserat_ros.core.model import Model
-from cosserat_ros.core.terms import bending, coupling, membrane, TERMS
+from cosserat_ros.core.terms import bending, membrane, TERMS
 from cosserat_ros.core.terms.jet import model_scratch
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import Material

@@ -28,7 +28,7 @@ force a call lasts at most :data:`BREAK_CHECK` (every step of the implicit solve
 from __future__ import annotations
 
 import math
-from typing import Dict, Optional
+from typing import Dict
 
 import numpy as np
 
