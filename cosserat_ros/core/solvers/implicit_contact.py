@@ -357,9 +357,9 @@ class ObstacleConstraints:
         wedge = c < 0.0
         u = np.where(wedge[:, None], n2 - c[:, None] * n1, n2)     # the move's direction
         nu = np.where(wedge, s2, 1.0)                              # n2 . u
-        self.target[q] = xk[q] - (g2 / np.maximum(nu, 1e-300))[:, None] * u
+        self.target[q] = xk[q] - (g2 / nu)[:, None] * u          # nu >= SIN_CORNER^2
         v1 = self.vo[q]
-        self.vo[q] = v1 + (np.sum(n2 * (v2 - v1), 1) / np.maximum(nu, 1e-300))[:, None] * u
+        self.vo[q] = v1 + (np.sum(n2 * (v2 - v1), 1) / nu)[:, None] * u
         if len(q):
             # a corner's place inside a third obstacle's layer: out of every layer
             mask = np.zeros(len(xk), bool)
@@ -372,9 +372,7 @@ class ObstacleConstraints:
                 push_list(rest, t, control.obstacles, control.sdf_meta, control.sdf_data, th)
                 self.target[rest] = t[rest]
                 self.vo[rest] = v1[third]
-        out = np.zeros(len(ok), bool)
-        out[np.flatnonzero(ok)] = True
-        return out
+        return ok
 
     # ------------------------------------------------------------------ the end
     def finish(self, xn, xk, force, control, dt):
