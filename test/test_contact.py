@@ -595,27 +595,34 @@ def test_the_implicit_solver_rests_a_cloth_in_a_corner_without_a_rebound():
                                atol=1e-3 * np.linalg.norm(weight))
 
 
-def _sliding_into_a_wall(depth, wall_speed):
+def _sliding_into_a_plane(normal, clearance, depth=0.0):
     """The 0.1 m sheet at the implicit solver's frame step, on a frictionless floor,
-    ``depth`` of the contact layer inside it, sliding at 0.3 m/s into a frictionless wall
-    (the plane x = 0 moving at ``wall_speed`` along +x, towards the sheet) 2 mm off its
-    layer: (sim, the wall's id, the row of vertices nearest the wall)."""
+    ``depth`` of the contact layer inside it, sliding at 0.3 m/s along -x into a second
+    frictionless plane through the origin with ``normal``, its nearest row
+    ``clearance(th)`` [m] from x = 0 (th the contact thickness): (sim, the plane's id,
+    that row)."""
     sim = _sim(6, 0.1, solver='implicit')
     sim.gravity = np.array([0.0, 0.0, -G])
     sim.add_obstacle('plane', friction=0.0, name='floor')
-    wall = sim.add_obstacle('plane', point=(0, 0, 0), normal=(1, 0, 0), friction=0.0,
-                            name='wall')
-    s = math.sqrt(0.5)                                     # +z turned onto +x
-    sim.set_obstacle_pose(wall, (0, 0, 0), (0, s, 0, s), linear_velocity=(wall_speed, 0, 0))
-    th = sim.contact_thickness
+    plane = sim.add_obstacle('plane', point=(0, 0, 0), normal=normal, friction=0.0,
+                             name='second')
     x = sim.mesh.vertices.copy()
-    x[:, 0] += 0.05 + th + 0.002
-    x[:, 2] = th * (1.0 - depth)
+    x[:, 0] += 0.05 + clearance(sim.contact_thickness)
+    x[:, 2] = sim.contact_thickness * (1.0 - depth)
     sim.set_positions(x)
     v = np.zeros_like(x)
     v[:, 0] = -0.3
     sim.set_velocities(v)
-    return sim, wall, x[:, 0] < x[:, 0].min() + 1e-9
+    return sim, plane, x[:, 0] < x[:, 0].min() + 1e-9
+
+
+def _sliding_into_a_wall(depth, wall_speed):
+    """:func:`_sliding_into_a_plane` with the wall x = 0, moving at ``wall_speed`` along
+    +x (towards the sheet), the sheet 2 mm off its layer."""
+    sim, wall, edge = _sliding_into_a_plane((1, 0, 0), lambda th: th + 0.002, depth)
+    s = math.sqrt(0.5)                                     # +z turned onto +x
+    sim.set_obstacle_pose(wall, (0, 0, 0), (0, s, 0, s), linear_velocity=(wall_speed, 0, 0))
+    return sim, wall, edge
 
 
 def test_an_implicit_corner_adds_no_velocity_out_of_the_floors_layer():
@@ -664,20 +671,8 @@ def test_an_implicit_corner_of_a_floor_and_a_ramp_lets_the_cloth_ride_up():
     floor's plane instead, the row was sent back to the crease (0.268 m/s, none of it
     upwards)."""
     a = math.radians(30.0)
-    sim = _sim(6, 0.1, solver='implicit')
-    sim.gravity = np.array([0.0, 0.0, -G])
-    sim.add_obstacle('plane', friction=0.0, name='floor')
-    sim.add_obstacle('plane', point=(0, 0, 0), normal=(math.sin(a), 0, math.cos(a)),
-                     friction=0.0, name='ramp')
-    th = sim.contact_thickness
-    x = sim.mesh.vertices.copy()
-    x[:, 0] += 0.05 + th / math.sin(a) + 0.001
-    x[:, 2] = th
-    sim.set_positions(x)
-    v = np.zeros_like(x)
-    v[:, 0] = -0.3
-    sim.set_velocities(v)
-    edge = x[:, 0] < x[:, 0].min() + 1e-9
+    sim, ramp, edge = _sliding_into_a_plane((math.sin(a), 0, math.cos(a)),
+                                            lambda th: th / math.sin(a) + 0.001)
     e0 = sim.energy()['total']
     sim.step(1)
     u = sim.velocities[edge]
