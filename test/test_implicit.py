@@ -620,6 +620,69 @@ def test_a_sheet_comes_to_the_same_rest_with_the_split_preconditioner(monkeypatc
     assert np.abs(rest[0] - rest[1]).max() <= 1e-5 * sag
 
 
+def _spd(n, rng, dense_tail=0):
+    """A sparse symmetric positive definite n x n matrix: a 2-D grid's Laplacian with two
+    unknowns a node and random couplings (the preconditioner's kind of pattern), a
+    positive diagonal, and a dense last ``dense_tail`` x ``dense_tail`` block (a wide
+    supernode)."""
+    import scipy.sparse as sp
+    k = int(np.ceil(np.sqrt(max(n / 2, 1))))
+    lap1 = sp.diags([-np.ones(k - 1), 2 * np.ones(k), -np.ones(k - 1)], [-1, 0, 1])
+    grid = sp.kronsum(lap1, lap1)
+    a = sp.kron(grid, sp.csr_matrix(rng.random((2, 2)) + np.eye(2))).tocsr()[:n, :n]
+    a = a + a.T
+    if dense_tail:
+        q = rng.standard_normal((dense_tail, dense_tail))
+        a = a + sp.block_diag((sp.csr_matrix((n - dense_tail, n - dense_tail)), q @ q.T))
+    a = a + sp.diags(abs(a).sum(axis=1).A1 + rng.random(n) + 0.5)    # diagonally dominant
+    return sp.csc_matrix(a)
+
+
+@pytest.mark.parametrize('n, tail', [(1, 0), (2, 0), (50, 0), (2000, 0), (2000, 100)])
+def test_the_ldl_solve_is_the_factor_s_solve(n, tail):
+    """core/solvers/ldl.py: the L D L^T solve from SuperLU's symmetric factor of an SPD
+    matrix gives SuperLU's own solution (float32 factors: to 1e-5 of it) and solves the
+    system to float32's accuracy; two at once (the split preconditioner's pair) give the
+    same as one by one, to the bit; a supernode wider than 64 columns (a dense tail) is
+    solved as well."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    from cosserat_ros.core.solvers.ldl import LDLFactor, solve_pair
+    rng = np.random.default_rng(n + tail)
+    a = _spd(n, rng, tail)
+    a32 = sp.csc_matrix(a.astype(np.float32))
+    lu = splu(a32, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+              options={'SymmetricMode': True})
+    fac = LDLFactor(lu)
+    if tail:
+        assert np.diff(fac.start).max() > 64
+    b = rng.standard_normal(n).astype(np.float32)
+    z = fac.solve(b)
+    ref = lu.solve(b)
+    assert np.abs(z - ref).max() <= 1e-5 * np.abs(ref).max()
+    exact = np.linalg.solve(a.toarray(), b.astype(np.float64))
+    assert np.abs(z - exact).max() <= 1e-4 * np.abs(exact).max()
+    other = LDLFactor(splu(a32, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+                           options={'SymmetricMode': True}))
+    b2 = rng.standard_normal(n).astype(np.float32)
+    z1, z2 = np.empty(n, np.float32), np.empty(n, np.float32)
+    solve_pair(fac, b, z1, other, b2, z2)
+    assert np.array_equal(z1, z) and np.array_equal(z2, other.solve(b2))
+
+
+def test_the_ldl_factor_refuses_a_pivoted_factor():
+    """A symmetric matrix with a zero diagonal makes SuperLU pivot: its L and U are then
+    no L D L^T factor, and LDLFactor says so instead of solving wrongly."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    from cosserat_ros.core.solvers.ldl import LDLFactor
+    lu = splu(sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]], np.float32)),
+              permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+              options={'SymmetricMode': True})
+    with pytest.raises(ValueError, match='pivoted'):
+        LDLFactor(lu)
+
+
 @pytest.mark.parametrize('n', [1, 63, 64, 1000])
 def test_the_fused_vector_kernels_are_their_numpy_expressions(n):
     """core/solvers/vectors.py against the numpy it replaces in CG (n below, at and

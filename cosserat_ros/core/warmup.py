@@ -188,10 +188,10 @@ def _compile(tiled: bool, coupled: bool):
                             sim.coefficients, sim.dt, 1.0, np.zeros(2))
     # then, while the node steps, what its commands call (the closest point of
     # ~/point_forces, the distance field of a mesh obstacle from ~/obstacles) and what
-    # only some configs need: the implicit solver's contact kernels and its CG's vector
-    # work (the rest of that solver is the step's force), self-collision's kernels and
-    # the corners and edges of boxes, cylinders and meshes (both called from Python
-    # after each step)
+    # only some configs need: the implicit solver's contact kernels, its CG's vector
+    # work and its preconditioner's solve (the rest of that solver is the step's
+    # force), self-collision's kernels and the corners and edges of boxes, cylinders
+    # and meshes (both called from Python after each step)
     from .contact import mesh_distance_field
     from .surface_query import closest_points
     closest_points(sim.state.x, sim.model.mesh.faces, np.zeros((1, 3)))
@@ -200,6 +200,8 @@ def _compile(tiled: bool, coupled: bool):
     warm_implicit_contact(sim.state.x, sim.control)
     from .solvers.vectors import warm as warm_vectors
     warm_vectors()
+    from .solvers.ldl import warm as warm_ldl
+    warm_ldl()
     from .self_contact import warm
     warm()
     from .features import warm as warm_features

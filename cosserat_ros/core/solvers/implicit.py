@@ -118,9 +118,6 @@ step's solve did (Newton iterations, CG iterations, residual, converged).
 """
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,6 +128,7 @@ from ..energy import elastic_energy
 from ..terms import TERMS
 from ..terms.jet import model_scratch
 from ..terms.membrane import add_compression_product, compressed_faces, compression_stress
+from .ldl import LDLFactor, solve_pair
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .update import contact_list
 from .vectors import (cg_update, direction, dot, fd_product, from_frames, inertia_energy,
@@ -185,29 +183,6 @@ def vertex_frames(x: np.ndarray, corners: np.ndarray) -> np.ndarray:
     t1 = e - np.sum(e * nrm, axis=1)[:, None] * nrm
     t1 /= np.linalg.norm(t1, axis=1)[:, None]
     return np.stack([t1, np.cross(nrm, t1), nrm], axis=2)
-
-
-_SOLVE_THREAD = []
-_SOLVE_LOCK = threading.Lock()
-
-
-def _solve_thread():
-    """The one worker thread (shared by every solver of the process, started on first
-    use) that solves the split preconditioner's normal part while the calling thread
-    solves its tangential part: SuperLU's solve releases the GIL (scipy keeps its state
-    per thread), and the two solves overlap on two cores. 160 x 160, issue 6's P: 10.6 ms
-    the pair against 13.6 one after the other (the tangential alone 8.0); on another
-    host 7.0-7.3 against 8.6-9.6 (5.0). The overlap is not whole because SuperLU takes
-    the GIL back to allocate its result: two GIL-free compiled solves of the same
-    factors overlapped to within 0.4 ms (docs/performance.md, ninth session)."""
-    with _SOLVE_LOCK:
-        if not _SOLVE_THREAD:
-            _SOLVE_THREAD.append(ThreadPoolExecutor(1, thread_name_prefix='cosserat-solve'))
-        return _SOLVE_THREAD[0]
-
-
-# a child forked from a process that had the worker inherits it without its thread
-os.register_at_fork(after_in_child=_SOLVE_THREAD.clear)
 
 
 def _norm(a: np.ndarray) -> float:
@@ -431,7 +406,10 @@ class ImplicitSolver:
 
         Factored by SuperLU in single precision: a preconditioner needs no more (the CG
         iterations stay the same), and its solves, the solver's largest cost, take less
-        time (docs/performance.md)."""
+        time (docs/performance.md). Solved as ``L D L^T`` from SuperLU's factor by a
+        compiled supernodal solve (:mod:`.ldl`: half the entries read, free of the GIL,
+        the split's two parts at once on two threads): at 160 x 160 a pair of solves
+        inside a step 7.7 ms against SuperLU's own 10.4."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
@@ -480,28 +458,23 @@ class ImplicitSolver:
                             options={'SymmetricMode': True}))
 
         if form != 'split':
-            lu = lus[0]
+            fac = LDLFactor(lus[0])
+            rf = np.empty(3 * n, np.float32)
 
             def solve(r):
-                z = lu.solve(r.reshape(-1).astype(np.float32)).reshape(n, 3).astype(np.float64)
+                rf[:] = r.reshape(-1)
+                z = fac.solve(rf).reshape(n, 3).astype(np.float64)
                 z[pinned] = 0.0
                 return z
             return solve
-        lt, ln = lus
+        lt, ln = (LDLFactor(lu) for lu in lus)
         frame = np.ascontiguousarray(frame)
         rt, rn = np.empty(2 * n, np.float32), np.empty(n, np.float32)
-        worker = _solve_thread()
+        zt, zn = np.empty(2 * n, np.float32), np.empty(n, np.float32)
 
         def solve_split(r):
             to_frames(frame, np.ascontiguousarray(r), rt, rn)
-            # the two parts at once: SuperLU releases the GIL in its solve (one after
-            # the other where the worker is gone: the interpreter shutting down)
-            try:
-                normal = worker.submit(ln.solve, rn)
-            except RuntimeError:
-                normal = None
-            zt = lt.solve(rt)
-            zn = ln.solve(rn) if normal is None else normal.result()
+            solve_pair(lt, rt, zt, ln, rn, zn)      # the two parts at once
             z = np.empty((n, 3))
             from_frames(frame, zt, zn, pinned, z)
             return z
