@@ -670,6 +670,31 @@ def test_the_ldl_solve_is_the_factor_s_solve(n, tail):
     assert np.array_equal(z1, z) and np.array_equal(z2, other.solve(b2))
 
 
+def test_the_ldl_factor_takes_any_row_order_in_a_column():
+    """SuperLU's L comes with each column's diagonal first and its other rows unsorted;
+    the packing needs only the first. A factor whose rows are shuffled in every column
+    (the diagonal no longer first) is sorted first and solves the same."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    from cosserat_ros.core.solvers.ldl import LDLFactor
+    rng = np.random.default_rng(7)
+    a = sp.csc_matrix(_spd(300, rng).astype(np.float32))
+    lu = splu(a, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+              options={'SymmetricMode': True})
+    low = lu.L
+    order = np.concatenate([lo + rng.permutation(hi - lo)
+                            for lo, hi in zip(low.indptr[:-1], low.indptr[1:])])
+    shuffled = sp.csc_matrix((low.data[order], low.indices[order], low.indptr),
+                             shape=low.shape)
+    assert not np.array_equal(shuffled.indices[shuffled.indptr[:-1]], np.arange(300))
+
+    class Shuffled:
+        L, U, perm_r, perm_c = shuffled, lu.U, lu.perm_r, lu.perm_c
+    b = rng.standard_normal(300).astype(np.float32)
+    ref = lu.solve(b)
+    assert np.abs(LDLFactor(Shuffled()).solve(b) - ref).max() <= 1e-5 * np.abs(ref).max()
+
+
 def test_the_ldl_factor_refuses_a_pivoted_factor():
     """A symmetric matrix with a zero diagonal makes SuperLU pivot: its L and U are then
     no L D L^T factor, and LDLFactor says so instead of solving wrongly."""

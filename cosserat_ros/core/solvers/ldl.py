@@ -28,7 +28,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..compiled import kernel
+from ..compiled import REDUCTION, kernel
 
 U64 = nb.uint64
 
@@ -37,9 +37,9 @@ __all__ = ['LDLFactor', 'solve_pair', 'warm']
 
 @kernel()
 def _supernodes(indptr, indices):
-    """The first column of each supernode of the lower triangular CSC ``L`` (its rows
-    sorted, the diagonal first in each column), and the number of columns at the end:
-    column j + 1 joins j's supernode where its rows are exactly j's without j."""
+    """The first column of each supernode of the lower triangular CSC ``L`` (the
+    diagonal first in each column), and the number of columns at the end: column j + 1
+    joins j's supernode where its rows are exactly j's without j, in the same order."""
     n = len(indptr) - 1
     start = np.empty(n + 1, np.int64)
     ns = 0
@@ -90,12 +90,16 @@ def _pack(indptr, indices, data, start):
     return rows, rptr, blk, vptr
 
 
-@kernel(nogil=True)
+@kernel(nogil=True, fastmath=REDUCTION)
 def _solve(perm, start, rows, rptr, blk, vptr, dinv, acc, y, b, out):
     """out = P^-1 b by the factor's arrays (module docstring); y (n,) float64 and acc
-    (widest supernode,) are scratch. Every index is unsigned (``compiled.py``): with
-    signed ones numba's wrap-around of negative indices on each load made the solve
-    1.4-1.7x slower (docs/performance.md)."""
+    (widest supernode,) are scratch. Each block is read row by row, in the order it is
+    stored: the forward solve a dot product a row (triangle and rows below), the
+    backward one an axpy a row; the dot products may be summed in SIMD lanes
+    (``REDUCTION``: a preconditioner's solve needs no fixed summation order). Every
+    index is unsigned (``compiled.py``). Against signed indices, the triangles solved by
+    columns and the sums in order: 160 x 160, issue 6's tangential part, 3.0 ms a solve
+    against 7.4 (docs/performance.md)."""
     n = U64(len(b))
     for j in range(n):
         y[U64(perm[j])] = b[j]
@@ -105,12 +109,14 @@ def _solve(perm, start, rows, rptr, blk, vptr, dinv, acc, y, b, out):
         c0 = U64(start[s])
         w = U64(start[s + one]) - c0
         v0 = U64(vptr[s])
-        for k in range(w):                      # the dense triangle
-            yk = y[c0 + k]
-            for i in range(k + one, w):
-                y[c0 + i] -= blk[v0 + i * w + k] * yk
+        for i in range(one, w):                 # the dense triangle
+            t = 0.0
+            base = v0 + i * w
+            for k in range(i):
+                t += blk[base + k] * y[c0 + k]
+            y[c0 + i] -= t
         base = v0 + w * w
-        for i in range(U64(rptr[s]) + w, U64(rptr[s + one])):   # below: a dot product a row
+        for i in range(U64(rptr[s]) + w, U64(rptr[s + one])):   # the rows below
             t = 0.0
             for k in range(w):
                 t += blk[base + k] * y[c0 + k]
@@ -126,17 +132,18 @@ def _solve(perm, start, rows, rptr, blk, vptr, dinv, acc, y, b, out):
         for k in range(w):
             acc[k] = 0.0
         base = v0 + w * w
-        for i in range(U64(rptr[s]) + w, U64(rptr[s + one])):   # gather the rows below
+        for i in range(U64(rptr[s]) + w, U64(rptr[s + one])):   # the rows below
             yi = y[U64(rows[i])]
             for k in range(w):
                 acc[k] += blk[base + k] * yi
             base += w
-        for k1 in range(w):
-            k = w - one - k1
-            t = y[c0 + k] - acc[k]
-            for i in range(k + one, w):
-                t -= blk[v0 + i * w + k] * y[c0 + i]
-            y[c0 + k] = t
+        for i1 in range(w):                     # the triangle, its last row first
+            i = w - one - i1
+            yi = y[c0 + i] - acc[i]
+            y[c0 + i] = yi
+            base = v0 + i * w
+            for k in range(i):
+                acc[k] += blk[base + k] * yi
     for j in range(n):
         out[j] = y[U64(perm[j])]
 
@@ -150,10 +157,14 @@ class LDLFactor:
     def __init__(self, lu):
         if not np.array_equal(lu.perm_r, lu.perm_c):
             raise ValueError('SuperLU pivoted: its L and U are not an L D L^T factor')
-        low = lu.L.tocsc()
-        low.sort_indices()
-        indptr = low.indptr.astype(np.int64)
+        low = lu.L
         self.n = low.shape[0]
+        # SuperLU gives each column its diagonal first and the rows of a supernode in
+        # one order (unsorted below): all the packing needs. Sorted only if not
+        if not np.array_equal(low.indices[low.indptr[:-1]], np.arange(self.n)):
+            low = low.tocsc()
+            low.sort_indices()
+        indptr = low.indptr.astype(np.int64)
         self.perm = np.ascontiguousarray(lu.perm_c, dtype=np.int64)
         self.start = _supernodes(indptr, low.indices)
         self.rows, self.rptr, self.blk, self.vptr = _pack(indptr, low.indices, low.data,
