@@ -13,15 +13,17 @@ factor and a solve reads half the entries of SuperLU's own (which reads L and U)
 ``L`` is kept by supernodes: runs of consecutive columns whose rows below the diagonal
 are the same (each column's structure is the next one's plus its own diagonal row),
 stored as one dense row-major block each (the columns' rows, the triangle's upper part
-zero), so that the forward solve is one short dot product per row of a block and the
-backward one a gather, with one row index per row and not per entry.
+zero), so that the forward solve is one dot product per row of a block and the backward
+one an axpy per row, with one row index per row and not per entry.
 
-Why not SuperLU's own solve (measured in docs/performance.md, tenth session): inside a
-step the split preconditioner's two solves at 160 x 160 take ~10 ms a pair through
-SuperLU and ~7 ms here. SuperLU's solve reads L and U (twice the bytes), which come
-from memory cold after the internal force's pass; and it takes the GIL back to allocate
-its result, so the two parts solved in two threads did not overlap whole. Here both
-parts run at once in one parallel kernel (:func:`solve_pair`).
+Why not SuperLU's own solve (docs/performance.md, tenth session; issue 6's sheet at
+160 x 160, the split preconditioner's two parts): a pair of solves inside a step took
+10.4 ms through SuperLU (the normal part in a worker thread) and takes 4.4 ms here. The
+tangential part alone, back to back: 5.1-7.4 ms through SuperLU, 3.0 here; after an
+80 MB stream through the cache, as inside a step: 6.8-9.0 against 5.0. SuperLU's solve
+reads L and U, twice the entries, with a row index per entry of U, and it takes the GIL
+back to allocate its result, so its two parts in two threads did not overlap whole.
+Here both parts run at once in one parallel kernel (:func:`solve_pair`).
 """
 from __future__ import annotations
 
