@@ -3,8 +3,10 @@ import os
 import signal
 import subprocess
 import time
+import warnings
 
 from ament_index_python.packages import get_package_prefix
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -498,13 +500,22 @@ def test_render_follows_a_reset_by_recording_order(tmp_path, monkeypatch):
     pngs = [p for p in written if p.suffix == '.png']
     assert len(set(pngs)) == 3 and all(p.exists() for p in pngs)
     lines = []
-    monkeypatch.setattr(rd.plt.Axes, 'plot', lambda self, x, y, **kw: lines.append(x))
+    real_plot = rd.plt.Axes.plot
+    monkeypatch.setattr(rd.plt.Axes, 'plot', lambda self, x, y, **kw: (
+        lines.append(x), real_plot(self, x, y, **kw))[1])
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     energies = [serialize_message(DiagnosticArray(status=[DiagnosticStatus(values=[
         KeyValue(key='sim_time', value=str(t)), KeyValue(key='kinetic', value='1.0')])]))
         for t in (0.0, 0.1, 0.0, 0.1)]
     rd.energy_plot(energies, tmp_path / 'energy.png')
     assert lines and np.isnan(lines[0]).sum() == 1        # two runs, one break
+    # messages without any energy: an empty plot, without a legend of nothing
+    bare = [serialize_message(DiagnosticArray(status=[DiagnosticStatus(values=[
+        KeyValue(key='sim_time', value='0.0')])]))]
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        rd.energy_plot(bare, tmp_path / 'bare.png')
+    assert (tmp_path / 'bare.png').exists()
 
 
 def test_a_best_effort_publisher_is_recorded(tmp_path):

@@ -206,16 +206,19 @@ def energy_plot(energies, path: Path):
     t = np.array([d[0] for d in data], dtype=float)
     # a reset starts the time again: each run its own line, not one drawn back over it
     cut = np.flatnonzero(np.diff(t) < 0) + 1
+    drawn = 0
     for key in ENERGY_KEYS:
         vals = [d[1].get(key) for d in data]
         if all(v is not None for v in vals) and vals:
             ax.plot(np.insert(t, cut, np.nan), np.insert(np.array(vals, dtype=float), cut,
                                                          np.nan), label=key)
+            drawn += 1
     ax.set_xlabel('simulation time [s]')
     ax.set_ylabel('energy [J]')
     ax.set_title('Cloth energies')
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, ncol=2)
+    if drawn:                                   # no energy in every message: no legend
+        ax.legend(fontsize=8, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
