@@ -579,7 +579,8 @@ def test_the_implicit_solver_rests_a_cloth_in_a_corner_without_a_rebound():
     constraint had held them on the floor only, and the push out of the wall after the
     solve compressed the cloth: its strain energy rose by up to 7e-3 J in a step and it
     rebounded off the wall at 0.16 m/s. Now it rests: the energy never exceeds the
-    start's plus the work done, and the two obstacles together carry the weight."""
+    start's plus the work done, and the two obstacles together carry the weight, each
+    its own part (``_second_part``)."""
     sim = _sim(6, 0.1, solver='implicit')
     g, floor, wall = _in_a_corner(sim)
     e0 = sim.energy()['total']
@@ -593,6 +594,33 @@ def test_the_implicit_solver_rests_a_cloth_in_a_corner_without_a_rebound():
     weight = sim.coefficients.mass.sum() * g
     np.testing.assert_allclose(f[floor][0] + f[wall][0], weight, rtol=0,
                                atol=1e-3 * np.linalg.norm(weight))
+    # each frictionless obstacle its own part, along its normal: the corner vertices'
+    # whole force had been reported as the floor's, and the wall's read 0. To the
+    # solve's tolerance (1e-3 of the step's start residual): the next row, sliding on
+    # the floor, keeps 1.2e-5 N of tangential residual a vertex, 1.3% of the pull
+    assert f[wall][0][0] == pytest.approx(weight[0], rel=2e-2)
+    assert abs(f[wall][0][1]) + abs(f[wall][0][2]) < 1e-2 * np.linalg.norm(weight)
+    assert abs(f[floor][0][0]) + abs(f[floor][0][1]) < 1e-2 * np.linalg.norm(weight)
+
+
+def test_a_corner_vertex_force_splits_into_each_obstacles_push():
+    """``ObstacleConstraints._second_part``: a corner vertex's contact force, split
+    between its two obstacles. Each takes its push along its own normal, solved in the
+    plane of the two (a right angle and a 60-degree wedge); the friction along the
+    corner's line goes in proportion to the pushes; a pull is the other obstacle's."""
+    from cosserat_ros.core.solvers.implicit_contact import ObstacleConstraints
+    con = ObstacleConstraints(3)
+    s60 = math.sin(math.radians(60.0))
+    n1 = np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0]])
+    n2 = np.array([[1.0, 0, 0], [s60, 0, -0.5], [1.0, 0, 0]])
+    con.normal[:], con.normal2[:] = n1, n2
+    push = np.array([[3.0, 2.0], [1.5, 4.0], [3.0, -1.0]])      # (first's, second's)
+    line = np.array([0.0, 0.5, 0.0])
+    force = push[:, :1] * n1 + push[:, 1:] * n2 + line
+    second = con._second_part(np.arange(3), force)
+    np.testing.assert_allclose(second[0], 2.0 * n2[0] + 0.4 * line, atol=1e-12)
+    np.testing.assert_allclose(second[1], 4.0 * n2[1] + 4.0 / 5.5 * line, atol=1e-12)
+    np.testing.assert_allclose(second[2], 0.0, atol=1e-12)     # the wall would pull
 
 
 def _sliding_into_a_plane(normal, clearance, depth=0.0):

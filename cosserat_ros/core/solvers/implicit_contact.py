@@ -62,7 +62,9 @@ linearised gap is the most negative; a sliding vertex that a solve takes into a 
 obstacle's layer (a corner, its normal at least :data:`SIN_CORNER` from parallel to the
 first's) sticks where it is moved onto the second's layer without entering the first's
 (``ObstacleConstraints._corner``; this step: sliding along the corner's line is the next
-step's), and its contact force is reported as the first obstacle's.
+step's). Its contact force is reported as both obstacles': each takes its normal push,
+and the friction along the corner's line is shared in proportion to them
+(``ObstacleConstraints._second_part``).
 
 The contact force on a constrained vertex is written into ``Control.contact`` as the
 explicit update writes it, and its work is split as there: ``f_c . v_o dt`` is the
@@ -152,6 +154,8 @@ class ObstacleConstraints:
         self.target = np.zeros((n, 3))       # where a sticking vertex ends the step
         self.fn = np.zeros(n)                # the last normal force [N], carried over
         self.switched = np.zeros(n, bool)    # changed between stick and slide this step
+        self.row2 = np.full(n, -1, np.int64)  # a corner's second obstacle (``_corner``)
+        self.normal2 = np.zeros((n, 3))       # and its normal
         self._k = np.full(n, -1, np.int64)
         self._d = np.zeros(n)
         self._n = np.zeros((n, 3))
@@ -177,6 +181,7 @@ class ObstacleConstraints:
 
     def _take(self, sel):
         self.row[sel] = self._k[sel]
+        self.row2[sel] = -1
         self.d[sel] = self._d[sel]
         self.normal[sel] = self._n[sel]
         self.vo[sel] = self._vo[sel]
@@ -256,6 +261,7 @@ class ObstacleConstraints:
         changed = bool(release.any()) and not adds_only
         self.mode[release] = FREE
         self.friction[release] = 0.0
+        self.row2[release] = -1
         st = np.flatnonzero((self.mode == STICK) & ~self.switched & (not adds_only))
         if len(st):
             ft = r[st] - fn[st, None] * nrm[st]
@@ -358,6 +364,8 @@ class ObstacleConstraints:
         u = np.where(wedge[:, None], n2 - c[:, None] * n1, n2)     # the move's direction
         nu = np.where(wedge, s2, 1.0)                              # n2 . u
         self.target[q] = xk[q] - (g2 / nu)[:, None] * u          # nu >= SIN_CORNER^2
+        self.row2[q] = second
+        self.normal2[q] = n2
         v1 = self.vo[q]
         self.vo[q] = v1 + (np.sum(n2 * (v2 - v1), 1) / nu)[:, None] * u
         if len(q):
@@ -372,9 +380,28 @@ class ObstacleConstraints:
                 push_list(rest, t, control.obstacles, control.sdf_meta, control.sdf_data, th)
                 self.target[rest] = t[rest]
                 self.vo[rest] = v1[third]
+                self.row2[rest] = -1
         return ok
 
     # ------------------------------------------------------------------ the end
+    def _second_part(self, q, force):
+        """The second obstacle's part of the contact force ``force[q]`` on corner
+        vertices q (``_corner``), the rest being the first's: the force's part in the
+        plane of the two normals, ``a n1 + b n2``, gives each obstacle its normal push
+        (a negative one, a pull, is the other's), and the rest, along the corner's line
+        (friction), is shared in proportion to the pushes."""
+        f = force[q]
+        n1, n2 = self.normal[q], self.normal2[q]
+        c = np.sum(n1 * n2, 1)
+        f1, f2 = np.sum(f * n1, 1), np.sum(f * n2, 1)
+        det = 1.0 - c * c                         # >= SIN_CORNER^2 (``_corner``)
+        a = (f1 - c * f2) / det
+        b = (f2 - c * f1) / det
+        a, b = np.maximum(a, 0.0), np.maximum(b, 0.0)
+        line = f - a[:, None] * n1 - b[:, None] * n2
+        share = np.where(a + b > 0.0, b / np.maximum(a + b, 1e-300), 0.5)
+        return b[:, None] * n2 + share[:, None] * line
+
     def finish(self, xn, xk, force, control, dt):
         """Write the constrained vertices' contact rows (``force`` (n,3): the contact
         force on each vertex over the step) and return (their indices, obstacle work
@@ -385,8 +412,12 @@ class ObstacleConstraints:
         c[q, C_FORCE:C_FORCE + 3] = force[q]
         c[q, C_ID] = self.row[q]
         c[q, C_GAP] = self.d[q] - th
-        c[q, C_FORCE2:C_FORCE2 + 3] = 0.0         # one obstacle a constrained vertex
+        c[q, C_FORCE2:C_FORCE2 + 3] = 0.0
         c[q, C_ID2] = -1.0
+        corner = q[(self.mode[q] == STICK) & (self.row2[q] >= 0)]
+        if len(corner):
+            c[corner, C_FORCE2:C_FORCE2 + 3] = self._second_part(corner, force)
+            c[corner, C_ID2] = self.row2[corner]
         self.fn[self.mode == FREE] = 0.0
         move = dt * self.vo[q]
         work = float(np.sum(force[q] * move))
