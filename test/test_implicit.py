@@ -646,13 +646,11 @@ def test_the_ldl_solve_is_the_factor_s_solve(n, tail):
     same as one by one, to the bit; a supernode wider than 64 columns (a dense tail) is
     solved as well."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-    from cosserat_ros.core.solvers.ldl import LDLFactor, solve_pair
+    from cosserat_ros.core.solvers.ldl import LDLFactor, solve_pair, symmetric_lu
     rng = np.random.default_rng(n + tail)
     a = _spd(n, rng, tail)
     a32 = sp.csc_matrix(a.astype(np.float32))
-    lu = splu(a32, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-              options={'SymmetricMode': True})
+    lu = symmetric_lu(a32)
     fac = LDLFactor(lu)
     if tail:
         assert np.diff(fac.start).max() > 64
@@ -662,8 +660,7 @@ def test_the_ldl_solve_is_the_factor_s_solve(n, tail):
     assert np.abs(z - ref).max() <= 1e-5 * np.abs(ref).max()
     exact = np.linalg.solve(a.toarray(), b.astype(np.float64))
     assert np.abs(z - exact).max() <= 1e-4 * np.abs(exact).max()
-    other = LDLFactor(splu(a32, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-                           options={'SymmetricMode': True}))
+    other = LDLFactor(symmetric_lu(a32))
     b2 = rng.standard_normal(n).astype(np.float32)
     z1, z2 = np.empty(n, np.float32), np.empty(n, np.float32)
     solve_pair(fac, b, z1, other, b2, z2)
@@ -675,12 +672,10 @@ def test_the_ldl_factor_takes_any_row_order_in_a_column():
     the packing needs only the first. A factor whose rows are shuffled in every column
     (the diagonal no longer first) is sorted first and solves the same."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-    from cosserat_ros.core.solvers.ldl import LDLFactor
+    from cosserat_ros.core.solvers.ldl import LDLFactor, symmetric_lu
     rng = np.random.default_rng(7)
     a = sp.csc_matrix(_spd(300, rng).astype(np.float32))
-    lu = splu(a, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-              options={'SymmetricMode': True})
+    lu = symmetric_lu(a)
     low = lu.L
     order = np.concatenate([lo + rng.permutation(hi - lo)
                             for lo, hi in zip(low.indptr[:-1], low.indptr[1:])])
@@ -699,11 +694,8 @@ def test_the_ldl_factor_refuses_a_pivoted_factor():
     """A symmetric matrix with a zero diagonal makes SuperLU pivot: its L and U are then
     no L D L^T factor, and LDLFactor says so instead of solving wrongly."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-    from cosserat_ros.core.solvers.ldl import LDLFactor
-    lu = splu(sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]], np.float32)),
-              permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-              options={'SymmetricMode': True})
+    from cosserat_ros.core.solvers.ldl import LDLFactor, symmetric_lu
+    lu = symmetric_lu(sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]], np.float32)))
     with pytest.raises(ValueError, match='pivoted'):
         LDLFactor(lu)
 

@@ -128,8 +128,8 @@ from ..energy import elastic_energy
 from ..terms import TERMS
 from ..terms.jet import model_scratch
 from ..terms.membrane import add_compression_product, compressed_faces, compression_stress
-from .ldl import LDLFactor, solve_pair
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
+from .ldl import LDLFactor, solve_pair, symmetric_lu
 from .update import contact_list
 from .vectors import (cg_update, direction, dot, fd_product, from_frames, inertia_energy,
                       inertia_residual, residual_measure, to_frames)
@@ -411,7 +411,6 @@ class ImplicitSolver:
         the split's two parts at once on two threads): at 160 x 160 a pair of solves
         inside a step 4.4 ms against SuperLU's own 10.4."""
         import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
         from ..terms.membrane import face_hessians
         mdl = self.model
         f = mdl.faces
@@ -443,7 +442,7 @@ class ImplicitSolver:
                 vals.append(np.repeat(plate, 3))
             vals = [np.concatenate(vals)]
         mats, rv, cv = self._pattern(form)
-        lus = []
+        facs = []
         for (size, inv, nnz, indices, indptr), v, r_v, c_v in zip(mats, vals, rv, cv):
             if pinned.any():
                 k = size // n
@@ -452,13 +451,11 @@ class ImplicitSolver:
                 off[nface:nface + n * k * k] = False        # the identity's blocks stay
                 v = np.where(off, 0.0, v)
             data = np.bincount(inv, weights=v, minlength=nnz)
-            lus.append(splu(sp.csc_matrix((data.astype(np.float32), indices, indptr),
-                                          shape=(size, size)),
-                            permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-                            options={'SymmetricMode': True}))
+            facs.append(LDLFactor(symmetric_lu(sp.csc_matrix(
+                (data.astype(np.float32), indices, indptr), shape=(size, size)))))
 
         if form != 'split':
-            fac = LDLFactor(lus[0])
+            fac = facs[0]
             rf = np.empty(3 * n, np.float32)
 
             def solve(r):
@@ -467,7 +464,7 @@ class ImplicitSolver:
                 z[pinned] = 0.0
                 return z
             return solve
-        lt, ln = (LDLFactor(lu) for lu in lus)
+        lt, ln = facs
         frame = np.ascontiguousarray(frame)
         rt, rn = np.empty(2 * n, np.float32), np.empty(n, np.float32)
         zt, zn = np.empty(2 * n, np.float32), np.empty(n, np.float32)

@@ -34,7 +34,7 @@ from ..compiled import REDUCTION, kernel
 
 U64 = nb.uint64
 
-__all__ = ['LDLFactor', 'solve_pair', 'warm']
+__all__ = ['LDLFactor', 'symmetric_lu', 'solve_pair', 'warm']
 
 
 @kernel()
@@ -150,10 +150,19 @@ def _solve(perm, start, rows, rptr, blk, vptr, dinv, acc, y, b, out):
         out[j] = y[U64(perm[j])]
 
 
+def symmetric_lu(a):
+    """SuperLU's factor of the symmetric positive definite CSC matrix ``a`` in the form
+    :class:`LDLFactor` reads (module docstring): a symmetric minimum-degree ordering
+    (MMD on A^T + A), symmetric mode, and no pivoting."""
+    from scipy.sparse.linalg import splu
+    return splu(a, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
+                options={'SymmetricMode': True})
+
+
 class LDLFactor:
     """``P = Pc L D L^T Pc^T`` from SuperLU's factor ``lu`` (``scipy.sparse.linalg.
-    splu`` of a symmetric positive definite P in symmetric mode without pivoting; the
-    module docstring). Raises ``ValueError`` where the factor is not of that form (rows
+    splu`` of a symmetric positive definite P in symmetric mode without pivoting,
+    :func:`symmetric_lu`; the module docstring). Raises ``ValueError`` where the factor is not of that form (rows
     and columns permuted apart: SuperLU pivoted, on a zero diagonal)."""
 
     def __init__(self, lu):
@@ -174,11 +183,6 @@ class LDLFactor:
         self.dinv = 1.0 / lu.U.diagonal().astype(np.float64)
         self.acc = np.empty(int(np.diff(self.start).max()) if self.n else 1)
         self.y = np.empty(self.n)
-
-    @property
-    def entries(self) -> int:
-        """The stored entries of the supernodes' blocks (the triangles' zeros included)."""
-        return len(self.blk)
 
     def arrays(self):
         """The factor's arrays in :func:`_solve`'s order (``perm`` to ``y``)."""
@@ -212,10 +216,8 @@ def solve_pair(ft: LDLFactor, bt, ot, fn: LDLFactor, bn, on) -> None:
 def warm() -> None:
     """Compile the kernels here on a 2 x 2 factor (``core/warmup.py``)."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
     a = sp.csc_matrix(np.array([[2.0, 1.0], [1.0, 2.0]], np.float32))
-    f, g = (LDLFactor(splu(a, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0,
-                           options={'SymmetricMode': True})) for _ in range(2))
+    f, g = (LDLFactor(symmetric_lu(a)) for _ in range(2))
     b = np.ones(2, np.float32)
     f.solve(b)
     solve_pair(f, b, np.empty(2, np.float32), g, b.copy(), np.empty(2, np.float32))
