@@ -36,7 +36,8 @@ false and publishes ``/clock`` so that consumers with ``use_sim_time:=true`` agr
 
 The node only wires things together: parameters and their validation are in
 :mod:`.params`, command parsing in :mod:`.commands`, the tick's pacing in :mod:`.pacing`,
-the messages in :mod:`.conversions`.
+the messages in :mod:`.conversions` (the cloth's, as CDR bytes) and :mod:`.messages` (the
+others: clock, wrenches, obstacle markers, status).
 """
 from __future__ import annotations
 
@@ -57,14 +58,14 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from ..core import warmup
 from ..core.air import Air
@@ -73,7 +74,7 @@ from ..core.handles import turn_angle
 from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
 from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
                               steps_tiled)
-from . import commands
+from . import commands, messages
 from .conversions import (colormap, mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
                           percentile, point_cloud, shape_mesh)
 from .pacing import Pacer, ThreadTuner
@@ -511,7 +512,6 @@ class ClothNode(Node):
         return response
 
     def publish_handles(self, stamp: int):
-        sec, nsec = divmod(stamp, 1_000_000_000)
         held = self.sim.handles
         for name, h in self._handles.items():
             if h['id'] is not None and h['id'] not in held:
@@ -521,12 +521,7 @@ class ClothNode(Node):
                 f, t = self.sim.handle_wrench(h['id'])
                 if not (np.all(np.isfinite(f)) and np.all(np.isfinite(t))):
                     continue
-            w = WrenchStamped()
-            w.header.stamp.sec, w.header.stamp.nanosec = sec, nsec
-            w.header.frame_id = self.frame_id
-            w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(c) for c in f)
-            w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(c) for c in t)
-            h['wrench'].publish(w)
+            h['wrench'].publish(messages.wrench(stamp, self.frame_id, f, t))
 
     def _add_wrench_pub(self, oid: int):
         name = self.sim.obstacles[oid]['name']
@@ -623,42 +618,10 @@ class ClothNode(Node):
         seen[oid] = (now, p, q, key)
 
     def publish_obstacles(self, stamp: int):
-        """The obstacles as markers in ``frame_id`` (ns = their name)."""
-        arr = MarkerArray()
-        sec, nsec = divmod(stamp, 1_000_000_000)
-        clear = Marker()
-        clear.action = Marker.DELETEALL
-        arr.markers.append(clear)
-        for oid, d in self.sim.obstacles.items():
-            m = Marker()
-            m.header.frame_id = self.frame_id
-            m.header.stamp.sec, m.header.stamp.nanosec = sec, nsec
-            m.ns, m.id, m.action = d['name'], 0, Marker.ADD
-            (m.pose.position.x, m.pose.position.y, m.pose.position.z) = d['position']
-            (m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
-             m.pose.orientation.w) = d['orientation']
-            m.color.r, m.color.g, m.color.b, m.color.a = 0.6, 0.6, 0.6, 0.8
-            shape = d['shape']
-            if shape == 'sphere':
-                m.type = Marker.SPHERE
-                m.scale.x = m.scale.y = m.scale.z = 2 * d['radius']
-            elif shape == 'box':
-                m.type = Marker.CUBE
-                m.scale.x, m.scale.y, m.scale.z = (2 * h for h in d['half_extents'])
-            elif shape in ('cylinder', 'capsule'):
-                m.type = Marker.CYLINDER
-                m.scale.x = m.scale.y = 2 * d['radius']
-                m.scale.z = 2 * d['half_length'] + (2 * d['radius'] if shape == 'capsule'
-                                                    else 0.0)
-            elif shape == 'plane':
-                m.type = Marker.CUBE          # a thin 10 m square along the plane
-                m.scale.x = m.scale.y = 10.0
-                m.scale.z = 1e-3
-            else:
-                m.type = Marker.TRIANGLE_LIST
-                m.scale.x = m.scale.y = m.scale.z = 1.0
-                m.points = self._mesh_points(oid)
-            arr.markers.append(m)
+        """The obstacles as markers in ``frame_id`` (ns = their name):
+        :func:`.messages.obstacle_markers`."""
+        arr = messages.obstacle_markers(self.sim.obstacles, self._mesh_points, stamp,
+                                        self.frame_id)
         for oid in set(self._marker_points) - set(self.sim.obstacles):
             del self._marker_points[oid]
         self.obstacle_pub.publish(arr)
@@ -667,24 +630,16 @@ class ClothNode(Node):
         """A mesh obstacle's triangles as the points of a TRIANGLE_LIST, in its own frame;
         built once per obstacle (an id's mesh never changes: a new shape is a new id)."""
         if oid not in self._marker_points:
-            from geometry_msgs.msg import Point
-            verts, faces = self.sim.obstacle_mesh(oid)
-            self._marker_points[oid] = [Point(x=float(a), y=float(b), z=float(c))
-                                        for a, b, c in verts[faces.reshape(-1)]]
+            self._marker_points[oid] = messages.mesh_triangle_points(
+                *self.sim.obstacle_mesh(oid))
         return self._marker_points[oid]
 
     def publish_contact(self, stamp: int):
-        sec, nsec = divmod(stamp, 1_000_000_000)
         for oid, (f, t) in self.sim.contact_forces().items():
             pub = self._wrench_pubs.get(oid)
             if pub is None or not (np.all(np.isfinite(f)) and np.all(np.isfinite(t))):
                 continue
-            w = WrenchStamped()
-            w.header.stamp.sec, w.header.stamp.nanosec = sec, nsec
-            w.header.frame_id = self.frame_id
-            w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(c) for c in f)
-            w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(c) for c in t)
-            pub.publish(w)
+            pub.publish(messages.wrench(stamp, self.frame_id, f, t))
 
     # ------------------------------------------------------------------ commands
     def _reject(self, topic: str, reason: str):
@@ -1135,9 +1090,7 @@ class ClothNode(Node):
             return
         stamp = self.stamp_ns()
         if self.clock_pub is not None:     # first: a recorder on sim time logs what follows
-            c = Clock()                    # at this very instant
-            c.clock.sec, c.clock.nanosec = divmod(stamp, 1_000_000_000)
-            self.clock_pub.publish(c)
+            self.clock_pub.publish(messages.clock(stamp))    # at this very instant
         pinned = np.flatnonzero(self.sim.pinned)
         colors = self.vertex_colors()
         handles = np.array([d['position'] for d in self.sim.handles.values()])
@@ -1175,28 +1128,17 @@ class ClothNode(Node):
 
     def _status(self, name: str, level: bytes, message: str, values: Dict[str, object],
                 stamp: Optional[int] = None) -> DiagnosticArray:
-        arr = DiagnosticArray()
-        sec, nsec = divmod(self.stamp_ns() if stamp is None else stamp, 1_000_000_000)
-        arr.header.stamp.sec, arr.header.stamp.nanosec = sec, nsec
-        arr.header.frame_id = self.frame_id
-        st = DiagnosticStatus(level=level, name=name, message=message,
-                              hardware_id=self.get_fully_qualified_name())
-        st.values = [KeyValue(key=k, value=repr(v) if isinstance(v, float) else str(v))
-                     for k, v in values.items()]
-        arr.status = [st]
-        return arr
+        """:func:`.messages.status` in ``frame_id``, stamped ``stamp`` [ns] (default: now
+        in sim time), hardware_id this node's fully qualified name."""
+        return messages.status(self.stamp_ns() if stamp is None else stamp, self.frame_id,
+                               name, level, message, values,
+                               self.get_fully_qualified_name())
 
     def energy_message(self, stamp: int) -> DiagnosticArray:
-        vals = {k: float(v) for k, v in self._energy.items()}
-        vals['sim_time'] = float(self.sim.time)
-        vals['step'] = int(self.sim.step_count)
-        if self.diverged:
-            level, msg = DiagnosticStatus.ERROR, 'diverged: ' + self.diverged
-        elif self.paused:
-            level, msg = DiagnosticStatus.WARN, 'paused'
-        else:
-            level, msg = DiagnosticStatus.OK, 'running'
-        return self._status('energy', level, msg, vals, stamp)
+        """~/energy: :func:`.messages.energy_status` of the last published energies."""
+        return messages.energy_status(stamp, self.frame_id, self._energy, self.sim.time,
+                                      self.sim.step_count, self.diverged, self.paused,
+                                      self.get_fully_qualified_name())
 
     def diagnostics(self) -> DiagnosticArray:
         crit = self.sim.critical_dt()
