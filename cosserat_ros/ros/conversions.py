@@ -252,3 +252,29 @@ def percentile(v: np.ndarray, q: float) -> float:
     hi = min(lo + 1, len(v) - 1)
     p = np.partition(v, (lo, hi))
     return float(p[lo] + (k - lo) * (p[hi] - p[lo]))
+
+
+#: the colour of every vertex with ``coloring: none`` (RGBA)
+PLAIN_COLOR = (0.55, 0.65, 0.85, 1.0)
+
+
+def vertex_colors(coloring: str, sim, densities) -> np.ndarray:
+    """(n, 4) float32 RGBA per vertex of ``sim``'s cloth as the node's ``coloring`` draws
+    it: ``energy`` (the total energy density, scaled to its 98th percentile: pins would
+    saturate a max), ``stretch`` (area ratio - 1 over [-5%, 5%]), ``speed`` (|v| over its
+    max) or ``none`` (:data:`PLAIN_COLOR`). ``densities``: the simulator's energy
+    densities ({'total': (n,) J/m^2, ...})."""
+    n = sim.n_vertices
+    if coloring == 'none':
+        out = np.empty((n, 4), dtype=np.float32)
+        out[:] = PLAIN_COLOR
+        return out
+    if coloring == 'energy':
+        v = densities['total']
+        return colormap(v, 0.0, max(percentile(v, 98.0), 1e-12))
+    if coloring == 'speed':
+        v = np.linalg.norm(sim.velocities, axis=1)
+        return colormap(v, 0.0, max(float(v.max()), 1e-9))
+    g = sim.geometry()                                   # stretch: area ratio - 1
+    v = np.sqrt(np.linalg.det(g.metric) / np.linalg.det(g.rest_metric)) - 1.0
+    return colormap(v, -0.05, 0.05)

@@ -71,16 +71,14 @@ from ..core import warmup
 from ..core.air import Air
 from ..core.contact import mesh_distance_field
 from ..core.handles import turn_angle
-from ..core.mesh import GRID_PATTERNS, grid_mesh, load_mesh, MeshError
-from ..core.simulator import (ClothSimulator, DIVERGENCE_METHODS, Material, SimulationDiverged,
-                              steps_tiled)
-from . import commands, messages
-from .conversions import (colormap, mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
-                          percentile, point_cloud, shape_mesh)
+from ..core.simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
+from . import commands, messages, scene
+from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
+                          percentile, point_cloud, shape_mesh, vertex_colors)
 from .pacing import Pacer, ThreadTuner
 from .params import (AIR_KEYS, check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
                      MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
-                     obstacle_geometry, PARAMETERS, params_files, pin_set, pinned_indices,
+                     PARAMETERS, params_files, pin_set, pinned_indices,
                      RUNTIME_FLOATS, unknown_parameters, vec3, wind as checked_wind)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
@@ -157,18 +155,14 @@ class ClothNode(Node):
         if self.get_parameter('use_sim_time').value:
             raise ConfigError(SIM_TIME_REASON)
         self.observe_only = bool(p['observe_only'])
-        self.mesh = self._build_mesh(p)
+        self.mesh = scene.build_mesh(p)
         material = self._initial_material(p)
-        check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
-        check_choice(p['solver'], ClothSimulator.SOLVERS, 'solver')
-        if p['solver'] == 'implicit' and p['divergence'] != 'variational':
-            raise ConfigError("solver: implicit needs divergence: variational (the seed's "
-                              'covariant route has no energy to minimise)')
+        scene.check_solver(p)
         self.implicit = p['solver'] == 'implicit'
         gravity = vec3(p['gravity'], 'gravity')
         self._max_wind = p['max_wind']
         self._steady_wind = checked_wind(p['air.wind'], self._max_wind)
-        air = self._air(bool(p['air.enabled']), {k: p['air.' + k] for k in AIR_KEYS})
+        air = scene.build_air(bool(p['air.enabled']), {k: p['air.' + k] for k in AIR_KEYS})
         pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
         check_dt(p['dt'])
         t0 = time.perf_counter()
@@ -366,31 +360,6 @@ class ClothNode(Node):
         return callback
 
     @staticmethod
-    def _mesh_path(path: str) -> str:
-        """A relative path resolves against the working directory, then against the
-        package's installed share directory (so configs can name config/meshes/...)."""
-        if os.path.isabs(path) or os.path.exists(path):
-            return path
-        try:
-            from ament_index_python.packages import get_package_share_directory
-            shared = os.path.join(get_package_share_directory('cosserat_ros'), path)
-        except Exception:       # package not installed through an ament index
-            return path
-        return shared if os.path.exists(shared) else path
-
-    def _build_mesh(self, p):
-        try:
-            if p['mesh.file']:
-                return load_mesh(self._mesh_path(p['mesh.file']))
-            check_choice(p['mesh.pattern'], GRID_PATTERNS, 'mesh.pattern')
-            return grid_mesh(p['mesh.nx'], p['mesh.ny'], p['mesh.width'], p['mesh.height'],
-                             p['mesh.pattern'], p['mesh.seed'])
-        except (MeshError, ValueError) as exc:
-            if isinstance(exc, ConfigError):
-                raise
-            raise ConfigError(f'mesh: {exc}') from None
-
-    @staticmethod
     def _group_names(group: str, names) -> list:
         """The non-empty names of ``<group>.names``, refused if one repeats."""
         names = [n for n in names if n]
@@ -414,16 +383,14 @@ class ClothNode(Node):
 
     def _declared_obstacles(self, names):
         """The obstacles of the parameters (``obstacles.names`` and, for each,
-        ``obstacles.<name>.<key>``, :data:`.params.OBSTACLE_KEYS`)."""
-        for name in self._group_names('obstacles', names):
-            values = self._declare_group('obstacles', name, OBSTACLE_KEYS, 'obstacle')
-            shape, friction, geometry = obstacle_geometry(name, values)
-            if 'file' in geometry:
-                geometry['file'] = self._mesh_path(geometry['file'])
-            try:
-                self.sim.add_obstacle(shape, friction=friction, name=name, **geometry)
-            except ValueError as exc:
-                raise ConfigError(f'obstacle {name}: {exc}') from None
+        ``obstacles.<name>.<key>``, :data:`.params.OBSTACLE_KEYS`), added as
+        :func:`.scene.add_declared_obstacles` adds them."""
+        values = {'obstacles.names': self._group_names('obstacles', names)}
+        for name in values['obstacles.names']:
+            for key, value in self._declare_group('obstacles', name, OBSTACLE_KEYS,
+                                                  'obstacle').items():
+                values[f'obstacles.{name}.{key}'] = value
+        scene.add_declared_obstacles(self.sim, values)
 
     def _declared_handles(self, names, qos):
         """The handles of ``handles.names``: their parameters, topics and service."""
@@ -707,31 +674,14 @@ class ClothNode(Node):
         self.sim.wind = v
 
     def _initial_material(self, p: dict) -> Material:
-        """The material.* parameters, on top of material.preset when one is named: the
-        preset gives zeta, xi, phi and density, a material.* parameter given explicitly
-        (params file, command line) overrides it, and damping is always material.damping;
-        the parameters are then set to what the cloth gets. ConfigError if bad."""
-        name = p['material.preset']
-        try:
-            if not name:
-                return Material(**{k: p['material.' + k] for k in MATERIAL_KEYS})
-            given = {k: p['material.' + k] for k in MATERIAL_KEYS
-                     if 'material.' + k in self._parameter_overrides or k == 'damping'}
-            material = Material.preset(name, **given)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
-        self.set_parameters([Parameter('material.' + k, value=float(getattr(material, k)))
-                             for k in MATERIAL_KEYS])
+        """The material of the material.* parameters (:func:`.scene.initial_material`:
+        a preset's constants, overridden by the material.* given explicitly); the
+        parameters are then set to what the cloth gets. ConfigError if bad."""
+        material = scene.initial_material(p, self._parameter_overrides)
+        if p['material.preset']:
+            self.set_parameters([Parameter('material.' + k, value=float(getattr(material, k)))
+                                 for k in MATERIAL_KEYS])
         return material
-
-    @staticmethod
-    def _air(enabled: bool, coefficients: dict) -> Optional[Air]:
-        """The simulator's air from the air.* parameters (None: off), else ConfigError."""
-        try:
-            air = Air(**coefficients)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
-        return air if enabled else None
 
     def _enforce_limits(self):
         """A lowered ``max_force``, ``max_acceleration`` or ``max_wind`` also bounds what
@@ -982,7 +932,7 @@ class ClothNode(Node):
         if changed_material:
             self.sim.material = Material(**mat)
         if changed_air:
-            self.sim.air = self._air(self.get_parameter('air.enabled').value,
+            self.sim.air = scene.build_air(self.get_parameter('air.enabled').value,
                                      {k: self.get_parameter('air.' + k).value
                                       for k in AIR_KEYS})
             if self.sim.air is None and self._wind is not None:
@@ -1065,20 +1015,7 @@ class ClothNode(Node):
         return int(round(self.sim.time * 1e9))
 
     def vertex_colors(self) -> np.ndarray:
-        n = self.mesh.n_vertices
-        if self._coloring == 'none':
-            out = np.empty((n, 4), dtype=np.float32)
-            out[:] = (0.55, 0.65, 0.85, 1.0)
-            return out
-        if self._coloring == 'energy':       # 98th percentile: pins would saturate a max
-            v = self._densities['total']
-            return colormap(v, 0.0, max(percentile(v, 98.0), 1e-12))
-        if self._coloring == 'speed':
-            v = np.linalg.norm(self.sim.velocities, axis=1)
-            return colormap(v, 0.0, max(float(v.max()), 1e-9))
-        g = self.sim.geometry()                          # stretch: area ratio - 1
-        v = np.sqrt(np.linalg.det(g.metric) / np.linalg.det(g.rest_metric)) - 1.0
-        return colormap(v, -0.05, 0.05)
+        return vertex_colors(self._coloring, self.sim, self._densities)
 
     def publish_state(self):
         """Publish ~/mesh, ~/energy and /clock for the current state."""

@@ -316,5 +316,10 @@ class BagWriter:
         tmp.replace(self.path / 'metadata.yaml')
 
     @property
+    def typestore(self):
+        """The rosbags type store the schemas come from (it serialises too)."""
+        return self._ts
+
+    @property
     def counts(self) -> Dict[str, int]:
         return {t.name: t.count for t in self.topics.values()}
