@@ -16,7 +16,7 @@ PARAMS ?= config/cloth.yaml
 
 install: $(PKG_STAMP)
 
-$(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt
+$(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt requirements-batch.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade 'pip<25'
 	$(PY) -m pip install --quiet -r requirements-dev.txt

@@ -18,9 +18,10 @@ setup(
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools'],
-    # the peer engine of the benchmark (requirements-bench.txt pins it) and the live view
-    # (foxglove.port; requirements-viz.txt)
-    extras_require={'bench': ['mujoco'], 'viz': ['foxglove-sdk']},
+    # the peer engine of the benchmark (requirements-bench.txt pins it), the live view
+    # (foxglove.port; requirements-viz.txt) and the batch engine (requirements-batch.txt)
+    extras_require={'bench': ['mujoco'], 'viz': ['foxglove-sdk'],
+                    'batch': ['ray>=2.60', 'pyarrow', 'mcap']},
     zip_safe=False,
     maintainer='cosserat_ros developers',
     maintainer_email='cosserat-ros@example.com',
@@ -34,6 +35,7 @@ setup(
             'render = cosserat_ros.entry:render',
             'fold_demo = cosserat_ros.entry:fold_demo',
             'flag_demo = cosserat_ros.entry:flag_demo',
+            'batch = cosserat_ros.entry:batch',
         ],
     },
 )

@@ -7,7 +7,7 @@ import importlib
 import signal
 import sys
 
-__all__ = ['cloth_node', 'record', 'render', 'fold_demo', 'flag_demo']
+__all__ = ['cloth_node', 'record', 'render', 'fold_demo', 'flag_demo', 'batch']
 
 
 def _interrupt(signum, frame):
@@ -60,3 +60,7 @@ def fold_demo() -> int:
 
 def flag_demo() -> int:
     return _run('flag_demo', 'cosserat_ros.tools.flag_demo')
+
+
+def batch() -> int:
+    return _run('batch', 'cosserat_ros.batch.cli')

@@ -1,0 +1,391 @@
+"""The batch driver: episodes as Ray tasks, exactly one manifest line each.
+
+Ray is the engine (its scheduler, its cluster; no pool or protocol of ours). Without an
+address the driver starts a private Ray instance for the run (``ray.init`` with the
+machine's cores, its own temporary directory, no dashboard) and shuts it down at the end;
+Ray starts its processes sharing the driver's fate, so a driver killed outright takes them
+with it. With ``address`` (``auto``, ``HOST:PORT`` or ``ray://...``) it joins that cluster,
+whose nodes have the package installed.
+
+**Workers.** Ray reuses its worker processes from task to task, so each compiles (or loads
+from the compile cache beside the installed package) the kernels once. Each task asks Ray
+for ``threads`` CPUs and runs numba on that many threads: ``workers x threads`` never
+exceeds the CPUs Ray has (``threads = CPUs // workers``, at most the smallest node's).
+A task runs :func:`.episode.run_episode` into a temporary directory on its own node and
+returns the episode's files; the driver writes them, so the cluster needs no shared file
+system.
+
+**Exactly once.** Only the driver writes ``OUT``: it stages an episode's files under
+``OUT/.tmp/``, renames the directory into ``OUT/episodes/<id>`` (atomic), then appends the
+episode's line to ``OUT/manifest.jsonl`` (flushed and synced), and never a second line for
+an id that has one. A task whose worker died, whose node was lost or that ran past
+``episode_timeout`` (then cancelled) is submitted again, up to ``max_retries`` more times,
+and the line says how many ``attempts`` it took; a failure any attempt would meet (a
+refused parameter, a diverged simulation) is recorded at once, not retried. ``resume``
+reads the manifest (a torn last line is dropped), adopts an episode directory that was
+renamed but not yet listed, removes what was left in ``.tmp`` and runs the rest; a
+different spec in the same directory is refused.
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import math
+import os
+from pathlib import Path
+import shutil
+import sys
+import tempfile
+import time
+from typing import Dict, List, Optional
+import uuid
+
+from .episode import commit_directory, cpu_model, package_version
+from .spec import Episode, SpecError, check_episode, load_spec, plan, spec_digest
+
+__all__ = ['run_batch', 'read_manifest', 'MANIFEST', 'Progress']
+
+MANIFEST = 'manifest.jsonl'
+SPEC_FILE = 'spec.json'
+#: [s] how long the driver waits on Ray between looks at the timeouts and the progress
+POLL = 0.5
+
+
+def read_manifest(out_dir, repair: bool = False) -> List[dict]:
+    """The lines of ``OUT/manifest.jsonl``; a torn last line (a driver killed while
+    writing it) is skipped, and with ``repair`` cut from the file."""
+    path = Path(out_dir) / MANIFEST
+    if not path.exists():
+        return []
+    data = path.read_bytes()
+    end = data.rfind(b'\n') + 1
+    if repair and end < len(data):
+        with open(path, 'r+b') as fh:
+            fh.truncate(end)
+    out = []
+    for line in data[:end].splitlines():
+        if line.strip():
+            out.append(json.loads(line))
+    return out
+
+
+class Progress:
+    """Episodes done / failed, rate and ETA: a bar on a terminal (``bar``), one JSON
+    object per finished episode on stdout (``jsonl``), or nothing (``none``)."""
+
+    def __init__(self, mode: str, total: int, done: int, failed: int):
+        if mode not in ('bar', 'jsonl', 'none'):
+            raise SpecError(f'--progress must be bar, jsonl or none, got {mode!r}')
+        self.mode = mode if (mode != 'bar' or sys.stderr.isatty()) else 'none'
+        self.total, self.done, self.failed = total, done, failed
+        self.start = time.monotonic()
+        self.new = 0
+
+    def update(self, line: Optional[dict] = None) -> None:
+        if line is not None:
+            self.new += 1
+            if line['status'] == 'ok':
+                self.done += 1
+            else:
+                self.failed += 1
+        elapsed = time.monotonic() - self.start
+        rate = self.new / elapsed if elapsed > 0 else 0.0
+        left = self.total - self.done - self.failed
+        eta = left / rate if rate > 0 else None
+        if self.mode == 'jsonl' and line is not None:
+            print(json.dumps({'id': line['id'], 'status': line['status'],
+                              'done': self.done, 'failed': self.failed,
+                              'total': self.total, 'rate_per_s': round(rate, 4),
+                              'eta_s': None if eta is None else round(eta, 1)}),
+                  flush=True)
+        elif self.mode == 'bar':
+            width = 30
+            k = int(width * (self.done + self.failed) / max(1, self.total))
+            eta_s = '?' if eta is None else f'{eta:.0f} s'
+            sys.stderr.write(f'\r[{"#" * k}{"." * (width - k)}] {self.done + self.failed}'
+                             f'/{self.total}  ok {self.done}  failed {self.failed}  '
+                             f'{rate * 60:.1f}/min  ETA {eta_s}   ')
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.mode == 'bar':
+            sys.stderr.write('\n')
+
+
+# ---------------------------------------------------------------- the task
+def _episode_task(episode: dict, threads: int):
+    """In a Ray worker: run one episode with ``threads`` numba threads into a local
+    temporary directory and return (result, {relative path: bytes})."""
+    import numba
+    import ray
+    from .episode import run_episode
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    tmp = Path(tempfile.mkdtemp(prefix='cosserat_batch_'))
+    try:
+        result = run_episode(episode, tmp)
+        root = tmp / 'episodes' / episode['id']
+        files = {str(p.relative_to(root)): p.read_bytes()
+                 for p in sorted(root.rglob('*')) if p.is_file()}
+        result['node'] = ray.get_runtime_context().get_node_id()
+        result['numba_threads'] = numba.get_num_threads()
+        return result, files
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# ---------------------------------------------------------------- the run directory
+def _prepare(out: Path, spec: dict, resume: bool):
+    digest = spec_digest(spec)
+    if out.exists() and any(out.iterdir()):
+        if not resume:
+            raise SpecError(f'{out} exists and is not empty: --resume to finish its run, '
+                            'or choose another directory')
+        try:
+            stored = json.loads((out / SPEC_FILE).read_text())
+        except (OSError, ValueError):
+            raise SpecError(f'{out}: no {SPEC_FILE}; not a batch run directory') from None
+        if spec_digest(stored) != digest:
+            raise SpecError(f'{out} holds a run of another spec (its {SPEC_FILE} differs); '
+                            'resume it with the same spec, or choose another directory')
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = out / (SPEC_FILE + '.tmp')
+        tmp.write_text(json.dumps(spec, sort_keys=True, indent=1) + '\n')
+        tmp.replace(out / SPEC_FILE)
+    (out / 'episodes').mkdir(exist_ok=True)
+    shutil.rmtree(out / '.tmp', ignore_errors=True)
+    (out / '.tmp').mkdir()
+    lock = open(out / '.lock', 'w')
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise SpecError(f'{out}: another batch driver is running on it') from None
+    return lock
+
+
+class _Manifest:
+    """The manifest file, written by this driver only: one line per id, synced."""
+
+    def __init__(self, out: Path):
+        self.out = out
+        self.lines = {ln['id']: ln for ln in read_manifest(out, repair=True)}
+        self._fh = open(out / MANIFEST, 'a')
+
+    def add(self, line: dict) -> bool:
+        if line['id'] in self.lines:
+            return False
+        self._fh.write(json.dumps(line, sort_keys=True) + '\n')
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self.lines[line['id']] = line
+        return True
+
+    def close(self):
+        self._fh.close()
+
+
+def _commit(out: Path, result: dict, files: Dict[str, bytes]) -> dict:
+    """Stage the episode's files, with its final result.json, and rename them into
+    place; the result of whichever attempt got there first."""
+    staged = out / '.tmp' / f'{result["id"]}.{uuid.uuid4().hex}'
+    for rel, data in files.items():
+        p = staged / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(data)
+    (staged / 'result.json').write_text(json.dumps(result, sort_keys=True) + '\n')
+    final = out / 'episodes' / result['id']
+    if commit_directory(staged, final):
+        return result
+    return json.loads((final / 'result.json').read_text())
+
+
+def write_parquet(out: Path) -> Optional[Path]:
+    """``OUT/manifest.parquet``: the manifest as a table (nested fields as JSON text,
+    metrics as columns ``metric_<name>``); None if pyarrow is missing."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        return None
+    lines = sorted(read_manifest(out), key=lambda ln: ln['index'])
+    rows = []
+    for ln in lines:
+        row = {k: (json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else v)
+               for k, v in ln.items() if k != 'metrics'}
+        for k, v in (ln.get('metrics') or {}).items():
+            row[f'metric_{k}'] = v
+        rows.append(row)
+    keys = sorted({k for r in rows for k in r})
+    table = pa.table({k: [r.get(k) for r in rows] for k in keys})
+    tmp = out / 'manifest.parquet.tmp'
+    pq.write_table(table, tmp)
+    tmp.replace(out / 'manifest.parquet')
+    return out / 'manifest.parquet'
+
+
+# ---------------------------------------------------------------- the run
+def _ray_init(address: Optional[str], temp_dir: Optional[str]):
+    """Join ``address``, or start a private instance on this machine's loopback address
+    (with its own temporary directory if given: ``temp_dir`` or
+    ``$COSSERAT_BATCH_RAY_TMPDIR``). Returns the reaper of a private instance (None
+    when joining; :mod:`.reaper`)."""
+    import ray
+    if address:
+        ray.init(address=address, log_to_driver=False, logging_level='ERROR',
+                 configure_logging=True)
+        return None
+    kwargs = dict(num_cpus=os.cpu_count() or 1, include_dashboard=False,
+                  log_to_driver=False, logging_level='ERROR', configure_logging=True,
+                  _node_ip_address='127.0.0.1')
+    temp_dir = temp_dir or os.environ.get('COSSERAT_BATCH_RAY_TMPDIR')
+    if temp_dir:
+        kwargs['_temp_dir'] = temp_dir
+    from . import reaper
+    before = set(reaper.descendants(os.getpid())) if os.path.isdir('/proc') else set()
+    watcher = reaper.start()
+    try:
+        ray.init(**kwargs)
+    finally:
+        if watcher is not None:
+            reaper.watch(watcher, sorted(set(reaper.descendants(os.getpid())) - before
+                                         - {watcher.pid}))
+    return watcher
+
+
+def _threads(workers: int) -> int:
+    """numba threads per worker: the CPUs over the workers, at most the smallest node's
+    CPUs (a task must fit on one node)."""
+    import ray
+    nodes = [n for n in ray.nodes() if n.get('Alive')]
+    cpus = [int(n['Resources'].get('CPU', 0)) for n in nodes]
+    cpus = [c for c in cpus if c > 0] or [1]
+    return max(1, min(sum(cpus) // max(1, workers), min(cpus)))
+
+
+def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[str] = None,
+              resume: bool = False, max_retries: int = 2,
+              episode_timeout: Optional[float] = None, progress: str = 'none',
+              ray_temp_dir: Optional[str] = None) -> dict:
+    """Run every episode of ``spec`` (a path, a dict or :func:`.spec.load_spec`'s result)
+    into ``out_dir`` on Ray (module docstring); returns the summary (counts, paths).
+    :class:`.spec.SpecError` for a bad spec or directory, before any work."""
+    spec = load_spec(spec)
+    if workers is not None and (not isinstance(workers, int) or workers < 1):
+        raise SpecError(f'--workers must be a positive integer, got {workers!r}')
+    if not isinstance(max_retries, int) or max_retries < 0:
+        raise SpecError(f'--max-retries must be an integer >= 0, got {max_retries!r}')
+    if episode_timeout is not None and not (episode_timeout > 0
+                                            and math.isfinite(episode_timeout)):
+        raise SpecError(f'--episode-timeout must be positive seconds, got '
+                        f'{episode_timeout!r}')
+    episodes = plan(spec)
+    out = Path(out_dir)
+    lock = _prepare(out, spec, resume)
+    manifest = _Manifest(out)
+    t_start = time.monotonic()
+    try:
+        # renamed into place but not listed (the driver died in between): adopt
+        for ep in episodes:
+            res = out / 'episodes' / ep.id / 'result.json'
+            if ep.id not in manifest.lines and res.exists():
+                manifest.add(json.loads(res.read_text()))
+        todo: List[Episode] = []
+        for ep in episodes:
+            if ep.id in manifest.lines:
+                continue
+            reason = check_episode(ep)
+            if reason is not None:      # the node would refuse it: deterministic
+                manifest.add(_failed_line(ep, f'refused: {reason}', attempts=0))
+            else:
+                todo.append(ep)
+        prog = Progress(progress, len(episodes),
+                        sum(ln['status'] == 'ok' for ln in manifest.lines.values()),
+                        sum(ln['status'] != 'ok' for ln in manifest.lines.values()))
+        if todo:
+            _run_on_ray(todo, out, manifest, prog, workers, address, max_retries,
+                        episode_timeout, ray_temp_dir)
+        prog.close()
+    finally:
+        manifest.close()
+        shutil.rmtree(out / '.tmp', ignore_errors=True)
+        lock.close()
+    write_parquet(out)
+    lines = read_manifest(out)
+    return {'out': str(out), 'episodes': len(episodes),
+            'ok': sum(ln['status'] == 'ok' for ln in lines),
+            'failed': sum(ln['status'] != 'ok' for ln in lines),
+            'ran': len(todo), 'wall_time': time.monotonic() - t_start,
+            'manifest': str(out / MANIFEST)}
+
+
+def _failed_line(ep: Episode, error: str, attempts: int, deterministic: bool = True) -> dict:
+    import socket
+    return {'id': ep.id, 'index': ep.index, 'seed': ep.seed, 'params': ep.params,
+            'init': ep.init, 'policy': ep.policy, 'status': 'failed', 'error': error,
+            'deterministic': deterministic, 'attempts': attempts, 'metrics': None,
+            'sim_time': 0.0, 'wall_time': 0.0, 'host': socket.gethostname(),
+            'cpu': cpu_model(), 'node': None, 'bag_sha256': None,
+            'version': package_version(), 'spec_digest': ep.spec_digest}
+
+
+def _run_on_ray(todo, out, manifest, prog, workers, address, max_retries, timeout,
+                ray_temp_dir):
+    import ray
+    from ray import exceptions as rex
+    from . import reaper
+    watcher = _ray_init(address, ray_temp_dir)
+    try:
+        if workers is None:
+            workers = max(1, int(ray.cluster_resources().get('CPU', 1)))
+        threads = _threads(workers)
+        task = ray.remote(_episode_task).options(num_cpus=threads, max_retries=0,
+                                                 name='cosserat_episode')
+        pending = list(reversed(todo))          # popped from the end: in index order
+        attempts: Dict[str, int] = {}
+        inflight: Dict[object, tuple] = {}     # ref -> (episode, submitted at)
+
+        def submit(ep):
+            attempts[ep.id] = attempts.get(ep.id, 0) + 1
+            inflight[task.remote(ep.to_dict(), threads)] = (ep, time.monotonic())
+
+        def retry_or_fail(ep, why: str):
+            if attempts[ep.id] <= max_retries:
+                pending.append(ep)
+            else:
+                line = _failed_line(ep, f'gave up after {attempts[ep.id]} attempts: {why}',
+                                    attempts[ep.id], deterministic=False)
+                if manifest.add(line):
+                    prog.update(line)
+
+        while pending or inflight:
+            while pending and len(inflight) < workers:
+                submit(pending.pop())
+            ready, _ = ray.wait(list(inflight), num_returns=1, timeout=POLL)
+            for ref in ready:
+                ep, _t = inflight.pop(ref)
+                try:
+                    result, files = ray.get(ref)
+                except (rex.WorkerCrashedError, rex.NodeDiedError, rex.TaskCancelledError,
+                        rex.ObjectLostError, rex.RaySystemError, rex.OutOfMemoryError,
+                        rex.RayTaskError) as exc:
+                    retry_or_fail(ep, str(exc).strip().splitlines()[0] if str(exc).strip()
+                                  else type(exc).__name__)
+                    continue
+                result['attempts'] = attempts[ep.id]
+                result = _commit(out, result, files)
+                if manifest.add(result):
+                    prog.update(result)
+            if timeout is not None:
+                now = time.monotonic()
+                for ref, (ep, t0) in list(inflight.items()):
+                    if now - t0 > timeout:
+                        ray.cancel(ref, force=True)
+                        del inflight[ref]
+                        retry_or_fail(ep, f'ran past the episode timeout of {timeout:g} s')
+            if not ready:
+                prog.update()
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+        reaper.stop(watcher)
