@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json')),
         ('share/' + package_name + '/config/meshes', glob('config/meshes/*')),
+        ('share/' + package_name + '/config/batch', glob('config/batch/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.*')),
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],

@@ -341,3 +341,23 @@ def test_coverage_of_a_flat_cloth_is_its_area():
     c = folded[:, 0].mean()
     folded[:, 0] = c + np.abs(folded[:, 0] - c)                 # the left half folded over
     assert coverage(folded, m.faces) == pytest.approx(0.175, rel=0.02)
+
+
+def test_a_loaded_spec_loads_again_to_itself():
+    s = load_spec(small_spec(policy={'pick_place': {'handles': 2}}))
+    assert load_spec(s) == s
+    assert load_spec(json.loads(json.dumps(s))) == s
+    s = load_spec(small_spec(init='flat', policy={'script': 'json:dumps'}))
+    assert load_spec(s) == s
+
+
+@pytest.mark.parametrize('name', ['table_drop', 'pick_place', 'flag_gusts'])
+def test_the_shipped_example_specs_load_and_their_first_episode_runs(name, tmp_path):
+    """The examples of config/batch/, as installed (their ``base`` resolves beside
+    them), each with its first episode cut to 0.2 s."""
+    share = ROOT / '.venv' / 'share' / 'cosserat_ros' / 'config' / 'batch'
+    spec = load_spec(share / f'{name}.yaml')
+    assert spec['episodes'] >= 50
+    spec['duration'] = 0.2
+    res = run_episode(plan(spec)[0], tmp_path)
+    assert res['status'] == 'ok', res['error']

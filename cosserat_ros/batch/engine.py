@@ -227,9 +227,8 @@ def write_parquet(out: Path) -> Optional[Path]:
 # ---------------------------------------------------------------- the run
 def _ray_init(address: Optional[str], temp_dir: Optional[str]):
     """Join ``address``, or start a private instance on this machine's loopback address
-    (with its own temporary directory if given: ``temp_dir`` or
-    ``$COSSERAT_BATCH_RAY_TMPDIR``). Returns the reaper of a private instance (None
-    when joining; :mod:`.reaper`)."""
+    (in ``temp_dir`` if given, else Ray's default: ``$RAY_TMPDIR/ray``, ``/tmp/ray``).
+    Returns the reaper of a private instance (None when joining; :mod:`.reaper`)."""
     import ray
     if address:
         ray.init(address=address, log_to_driver=False, logging_level='ERROR',
@@ -238,7 +237,6 @@ def _ray_init(address: Optional[str], temp_dir: Optional[str]):
     kwargs = dict(num_cpus=os.cpu_count() or 1, include_dashboard=False,
                   log_to_driver=False, logging_level='ERROR', configure_logging=True,
                   _node_ip_address='127.0.0.1')
-    temp_dir = temp_dir or os.environ.get('COSSERAT_BATCH_RAY_TMPDIR')
     if temp_dir:
         kwargs['_temp_dir'] = temp_dir
     from . import reaper

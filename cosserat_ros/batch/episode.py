@@ -354,6 +354,7 @@ class _Recorder:
 def _simulate(episode: Episode, bag_dir: Path) -> dict:
     """Build, place, act and record; the metrics. Raises EpisodeFailed (or the
     simulator's SimulationDiverged) for what any attempt would meet."""
+    from ..core.simulator import SimulationDiverged
     from ..ros.params import ConfigError
     from ..ros.scene import build_simulator, check_parameters
     try:
@@ -427,7 +428,13 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
     try:
         if script is not None:
             script_driver = _ScriptStepper(sim, record, boundary, end)
-            script(script_driver, np.random.default_rng(episode.seed), episode)
+            try:
+                script(script_driver, np.random.default_rng(episode.seed), episode)
+            except (SimulationDiverged, OSError, MemoryError):
+                raise
+            except Exception as exc:            # the user's code: the same every attempt
+                raise EpisodeFailed(f'policy {policy["target"]} raised '
+                                    f'{type(exc).__name__}: {exc}') from None
             script_driver.finish()
         else:
             step = 0

@@ -189,6 +189,8 @@ def _resolve_base(base: str, here: str) -> str:
 def _kind_and_args(key: str, v, kinds: Dict[str, dict]):
     if isinstance(v, str):
         v = {v: {}}
+    if isinstance(v, dict) and 'kind' in v:          # the normalised form load_spec gives
+        v = {v['kind']: {k: a for k, a in v.items() if k != 'kind'}}
     if not isinstance(v, dict) or len(v) != 1:
         raise SpecError(f'{key} must be one of {", ".join(kinds)} (a name, or {{name: '
                         f'{{...}}}}), got {v!r}')
@@ -213,7 +215,7 @@ def load_spec(path_or_dict) -> dict:
     ranges sound, the base params file read, the scene and every randomized parameter
     known to the node with a value of its type, presets and scripts that exist. A
     :class:`SpecError` with one line otherwise. The result is plain JSON data
-    (:func:`spec_digest` identifies it)."""
+    (:func:`spec_digest` identifies it), and loads again to itself."""
     raw, here = _read(path_or_dict)
     bad = sorted(set(raw) - set(TOP_KEYS))
     if bad:
@@ -278,6 +280,8 @@ def load_spec(path_or_dict) -> dict:
 
 def _load_policy(v) -> dict:
     kinds = {'none': {}, 'pick_place': PICK_PLACE, 'script': {}}
+    if isinstance(v, dict) and v.get('kind') == 'script':  # the normalised form
+        v = {'script': v.get('target')}
     if isinstance(v, dict) and set(v) == {'script'} and isinstance(v['script'], str):
         target = v['script']
         resolve_script(target)
@@ -357,10 +361,7 @@ def episode_rng(seed: int, index: int) -> np.random.Generator:
 def plan(spec) -> List[Episode]:
     """Every episode of ``spec`` (a dict from :func:`load_spec`, or what it takes) with
     its parameters resolved: pure, the same for the same spec."""
-    if not (isinstance(spec, dict) and spec.get('randomize') is not None
-            and 'record' in spec and isinstance(spec.get('init'), dict)
-            and 'kind' in spec['init']):
-        spec = load_spec(spec)
+    spec = load_spec(spec)
     digest = spec_digest(spec)
     width = max(6, len(str(spec['episodes'] - 1)))
     out = []

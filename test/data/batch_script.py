@@ -25,3 +25,11 @@ def blow_up(sim, rng, episode):
     """100 kN on one vertex: past the elastic speed limit in one step (diverged)."""
     sim.set_vertex_forces([0], [[0.0, 0.0, 1e5]])
     sim.step(sim.remaining_steps)
+
+
+def hang_first(sim, rng, episode):
+    """Episode 0 never finishes (a user's script stuck); the others step as usual."""
+    if episode.index == 0:
+        import time
+        time.sleep(3600)
+    sim.step(sim.remaining_steps)

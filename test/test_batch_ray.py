@@ -1,0 +1,287 @@
+"""The batch engine on real Ray: a private instance, and a two-node cluster on this
+machine (Ray's own ``ray.cluster_utils.Cluster``); workers, nodes and the driver really
+killed. Each test gives Ray its own temporary directory and checks that no process of it
+is left.
+
+The tests run from a temporary working directory: Ray puts the driver's working directory
+on its workers' path, and from the repository's root they would import the working tree
+instead of the installed package whose kernels the suite has compiled."""
+import json
+import os
+from pathlib import Path
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import pytest
+import yaml
+
+from cosserat_ros.batch import load_spec, plan, read_manifest, run_batch, run_episode
+
+ROOT = Path(__file__).resolve().parent.parent
+BATCH = ROOT / '.venv' / 'lib' / 'cosserat_ros' / 'batch'
+
+
+def spec(episodes=4, duration=0.4, **over):
+    s = {'batch': 1, 'seed': 11, 'episodes': episodes, 'duration': duration,
+         'base': str(ROOT / 'config' / 'table.yaml'),
+         'scene': {'mesh.nx': 10, 'mesh.ny': 10},
+         'randomize': {'material.damping': {'uniform': [0.1, 0.3]},
+                       'obstacles.table.center': {
+                           'uniform': [[-0.05, -0.05, -0.35], [0.05, 0.05, -0.3]]}},
+         'init': {'drop': {'height': {'uniform': [0.02, 0.1]},
+                           'tilt_deg': {'uniform': [0, 30]}}},
+         'policy': {'pick_place': {'handles': 1, 'moves': 1}},
+         'record': {'mesh_hz': 20, 'points_hz': 10}}
+    s.update(over)
+    return s
+
+
+def _ray_processes(tag: str):
+    """Pids of processes of this test's Ray: a command line naming its temporary
+    directory, or a Ray worker's or agent's title (``ray::...``)."""
+    out = []
+    for name in os.listdir('/proc'):
+        if not name.isdigit() or int(name) == os.getpid():
+            continue
+        try:
+            cmd = Path(f'/proc/{name}/cmdline').read_bytes().replace(b'\0', b' ').decode()
+        except OSError:
+            continue
+        if tag in cmd or cmd.startswith('ray::'):
+            out.append((int(name), cmd[:100]))
+    return out
+
+
+def _no_ray_left(tag: str, wait: float = 20.0):
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        left = _ray_processes(tag)
+        if not left:
+            return
+        time.sleep(0.5)
+    raise AssertionError(f'Ray processes left: {left}')
+
+
+def _every_episode_ok_once(out: Path, n: int):
+    lines = read_manifest(out)
+    ids = [ln['id'] for ln in lines]
+    assert sorted(ids) == [f'{i:06d}' for i in range(n)], ids
+    bad = [(ln['id'], ln['error']) for ln in lines if ln['status'] != 'ok']
+    assert not bad, bad
+    assert sorted(p.name for p in (out / 'episodes').iterdir()) == sorted(ids)
+    assert not (out / '.tmp').exists() or not any((out / '.tmp').iterdir())
+    r = subprocess.run([str(BATCH), 'verify', str(out)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return lines
+
+
+@pytest.fixture
+def raytmp(tmp_path, monkeypatch):
+    """A short temporary directory of Ray's own (its sockets live there) and a working
+    directory outside the repository; nothing of Ray's left afterwards."""
+    d = tempfile.mkdtemp(prefix='cosray', dir='/tmp')
+    os.mkdir(os.path.join(d, 'ray'))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv('RAY_TMPDIR', d)           # Ray's own variable: <d>/ray
+    yield d
+    try:
+        _no_ray_left(d)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture(scope='module', autouse=True)
+def warm(tmp_path_factory):
+    """One episode in this process first: the kernels the workers load are compiled."""
+    run_episode(plan(load_spec(spec(episodes=1)))[0], tmp_path_factory.mktemp('warm'))
+
+
+@pytest.fixture
+def cluster(raytmp, monkeypatch):
+    """Two nodes of one CPU each on this machine, on the loopback address (Ray's switch
+    for a single-machine cluster: a driver joining 127.0.0.1 would otherwise go to the
+    machine's own network address)."""
+    import ray._private.ray_constants as rc
+    from ray.cluster_utils import Cluster
+    monkeypatch.setenv('RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER', '0')
+    monkeypatch.setattr(rc, 'ENABLE_RAY_CLUSTER', False)
+    args = {'num_cpus': 1, 'temp_dir': os.path.join(raytmp, 'ray'),
+            'node_ip_address': '127.0.0.1',
+            'include_dashboard': False}
+    c = Cluster(initialize_head=True, head_node_args=args)
+    worker = c.add_node(**{k: v for k, v in args.items() if k != 'temp_dir'})
+    c.wait_for_nodes()
+    yield c, worker
+    c.shutdown()
+
+
+# ---------------------------------------------------------------- a private instance
+def test_one_worker_and_two_give_the_same_bytes_and_one_line_each(raytmp, tmp_path):
+    s = load_spec(spec(episodes=4))
+    one = run_batch(s, tmp_path / 'one', workers=1)       # 1 worker x 2 numba threads
+    two = run_batch(s, tmp_path / 'two', workers=2)       # 2 workers x 1 thread
+    assert (one['ok'], two['ok'], one['failed'], two['failed']) == (4, 4, 0, 0)
+    a = _every_episode_ok_once(tmp_path / 'one', 4)
+    b = _every_episode_ok_once(tmp_path / 'two', 4)
+    assert {ln['numba_threads'] for ln in a} == {min(2, os.cpu_count())}
+    assert {ln['numba_threads'] for ln in b} == {1}
+    sha = {ln['id']: ln['bag_sha256'] for ln in a}
+    assert sha == {ln['id']: ln['bag_sha256'] for ln in b}
+    for i in sha:
+        assert ((tmp_path / 'one' / 'episodes' / i / 'bag' / 'bag.mcap').read_bytes()
+                == (tmp_path / 'two' / 'episodes' / i / 'bag' / 'bag.mcap').read_bytes())
+    # and the same as a plain loop over run_episode, without Ray
+    ep = plan(s)[2]
+    assert run_episode(ep, tmp_path / 'loop')['bag_sha256'] == sha[ep.id]
+    for ln in a:
+        for key in ('id', 'seed', 'params', 'status', 'error', 'attempts', 'metrics',
+                    'sim_time', 'wall_time', 'host', 'node', 'bag_sha256', 'version',
+                    'cpu'):
+            assert key in ln, key
+        assert ln['attempts'] == 1 and ln['node']
+        assert set(ln['metrics']) >= {'kinetic_energy', 'elastic_energy', 'max_edge_strain',
+                                      'peak_handle_force', 'peak_contact_force', 'coverage'}
+    import pyarrow.parquet as pq
+    table = pq.read_table(tmp_path / 'one' / 'manifest.parquet')
+    assert table.num_rows == 4 and 'metric_coverage' in table.column_names
+
+
+def test_a_timed_out_episode_is_retried_then_given_up_with_the_reason(raytmp, tmp_path,
+                                                                      monkeypatch):
+    """A policy that hangs (a user's script) is cancelled at the timeout, tried again
+    --max-retries times, then recorded failed; the other episodes are not held up."""
+    data = str(Path(__file__).resolve().parent / 'data')
+    monkeypatch.syspath_prepend(data)
+    monkeypatch.setenv('PYTHONPATH', data + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    s = load_spec(spec(episodes=3, policy={'script': 'batch_script:hang_first'}))
+    summary = run_batch(s, tmp_path / 'out', workers=2, max_retries=1, episode_timeout=8.0)
+    lines = {ln['id']: ln for ln in read_manifest(tmp_path / 'out')}
+    assert summary['ok'] == 2 and summary['failed'] == 1
+    hung = lines['000000']
+    assert hung['status'] == 'failed' and hung['attempts'] == 2
+    assert hung['error'] == 'gave up after 2 attempts: ran past the episode timeout of 8 s'
+    assert not hung['deterministic']
+    assert not (tmp_path / 'out' / 'episodes' / '000000').exists()
+    assert [lines[i]['status'] for i in ('000001', '000002')] == ['ok', 'ok']
+
+
+def test_the_driver_killed_leaves_no_ray_process_and_resume_finishes(raytmp, tmp_path):
+    path = tmp_path / 'spec.yaml'
+    path.write_text(yaml.safe_dump(spec(episodes=6, duration=1.0)))
+    out = tmp_path / 'out'
+    driver = subprocess.Popen([str(BATCH), 'run', str(path), '-o', str(out), '--workers',
+                               '2', '--progress', 'jsonl'], stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True)
+    first = driver.stdout.readline()                     # one episode finished
+    assert json.loads(first)['status'] == 'ok', first
+    driver.send_signal(signal.SIGKILL)
+    driver.wait(timeout=30)
+    _no_ray_left(raytmp)
+    done = read_manifest(out)
+    assert 1 <= len(done) < 6
+    r = subprocess.run([str(BATCH), 'run', str(path), '-o', str(out), '--resume',
+                        '--progress', 'none'], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    lines = _every_episode_ok_once(out, 6)
+    before = {ln['id']: ln for ln in done}
+    for ln in lines:                                     # the ok ones were not redone
+        if ln['id'] in before:
+            assert ln == before[ln['id']]
+    # a different spec in the same directory is refused; so is a run without --resume
+    other = tmp_path / 'other.yaml'
+    other.write_text(yaml.safe_dump(spec(episodes=7, duration=1.0)))
+    for args, words in (([str(other), '--resume'], 'another spec'),
+                        ([str(path)], 'exists and is not empty')):
+        r = subprocess.run([str(BATCH), 'run', *args, '-o', str(out)], capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 2 and words in r.stderr and r.stderr.count('\n') == 1
+
+
+def test_status_and_montage_show_the_run(raytmp, tmp_path):
+    out = tmp_path / 'out'
+    run_batch(spec(episodes=3), out, workers=2)
+    r = subprocess.run([str(BATCH), 'status', str(out)], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0 and '3 episodes: 3 ok, 0 failed, 0 not run' in r.stdout
+    png = tmp_path / 'montage.png'
+    r = subprocess.run([str(BATCH), 'montage', str(out), '-o', str(png)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and png.stat().st_size > 20_000
+    # a bag spoilt after the run: verify says which and fails
+    mcap = out / 'episodes' / '000001' / 'bag' / 'bag.mcap'
+    data = bytearray(mcap.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+    r = subprocess.run([str(BATCH), 'verify', str(out)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 1 and '000001' in r.stdout
+
+
+# ---------------------------------------------------------------- a two-node cluster
+def test_episodes_land_on_both_nodes_of_a_cluster(cluster, tmp_path):
+    c, _ = cluster
+    run_batch(spec(episodes=6, duration=0.8), tmp_path / 'out', address=c.address)
+    lines = _every_episode_ok_once(tmp_path / 'out', 6)
+    import ray
+    assert not ray.is_initialized()                      # the driver let go of it
+    assert len({ln['node'] for ln in lines}) == 2
+
+
+def _kill_when(predicate, act, timeout=120.0):
+    """Run ``act()`` once ``predicate()`` holds (polled), in a thread."""
+    fired = {}
+
+    def loop():
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            got = predicate()
+            if got:
+                fired['what'] = act(got)
+                return
+            time.sleep(0.05)
+    t = threading.Thread(target=loop, daemon=True)
+    t.start()
+    return t, fired
+
+
+def _episode_workers():
+    """Pids of Ray workers running an episode now (Ray titles a busy worker with its
+    task's name, an idle one ``ray::IDLE``)."""
+    return [pid for pid, cmd in _ray_processes('ray::cosserat_episode')
+            if cmd.startswith('ray::cosserat_episode')]
+
+
+def test_a_worker_killed_mid_episode_is_retried(cluster, tmp_path):
+    c, _ = cluster
+    out = tmp_path / 'out'
+
+    def kill(pids):
+        os.kill(pids[0], signal.SIGKILL)
+        return pids[0]
+    t, fired = _kill_when(lambda: len(read_manifest(out)) >= 1 and _episode_workers(),
+                          kill)
+    run_batch(spec(episodes=6, duration=1.5), out, address=c.address, max_retries=2)
+    t.join(timeout=5)
+    assert 'what' in fired, 'no worker was caught mid-episode'
+    lines = _every_episode_ok_once(out, 6)
+    assert max(ln['attempts'] for ln in lines) == 2
+
+
+def test_a_node_removed_mid_batch_loses_no_episode(cluster, tmp_path):
+    c, worker = cluster
+    out = tmp_path / 'out'
+    t, fired = _kill_when(lambda: len(read_manifest(out)) >= 2,
+                          lambda _: c.remove_node(worker, allow_graceful=False) or True)
+    run_batch(spec(episodes=6, duration=1.5), out, address=c.address, max_retries=3)
+    t.join(timeout=30)
+    assert 'what' in fired
+    lines = _every_episode_ok_once(out, 6)
+    nodes = {ln['node'] for ln in lines}
+    assert len(nodes) == 2                              # some ran there before it went
