@@ -288,14 +288,14 @@ def test_a_refused_sample_is_a_failure_with_the_node_s_reason(tmp_path):
 
 
 def test_pick_and_place_grasps_the_top_and_moves_it(tmp_path):
-    spec = small_spec(episodes=1, duration=1.0, init='flat', base='',
+    spec = small_spec(episodes=1, duration=2.5, init='flat', base='',
                       scene={'mesh.nx': 8, 'mesh.ny': 8, 'pinned.sets': ['none'],
                              'obstacles.names': ['ground'],
                              'obstacles.ground.shape': 'plane',
                              'obstacles.ground.point': [0.0, 0.0, -0.005]},
                       randomize={},
                       policy={'pick_place': {'handles': 2, 'moves': 1, 'radius': 0.08,
-                                             'lift': 0.2}})
+                                             'lift': 0.2, 'speed': 1.0}})
     ep = plan(load_spec(spec))[0]
     res = run_episode(ep, tmp_path)
     assert res['status'] == 'ok', res['error']
@@ -303,9 +303,11 @@ def test_pick_and_place_grasps_the_top_and_moves_it(tmp_path):
     for name in ('h0', 'h1'):
         w = [m.wrench.force.z for t, _, m in msgs if t == f'/cloth_node/handles/{name}/wrench']
         assert max(w) > 0.0 and w[0] == 0.0 and w[-1] == 0.0    # held, then let go
+    # lifted 0.2 m at 1 m/s: up by 0.2 s (and the mesh at 20 Hz)
     meshes = [m for t, _, m in msgs if t == '/cloth_node/mesh']
-    mid = meshes[len(meshes) // 2]
-    assert max(p.z for p in mid.markers[0].points) > 0.1         # lifted
+    assert max(p.z for p in meshes[4].markers[0].points) > 0.15
+    # the handles' path was planned from the places drawn up front
+    assert len(ep.policy['places'][0]) == 2
     assert res['metrics']['peak_handle_force'] > 0
 
 
@@ -361,3 +363,21 @@ def test_the_shipped_example_specs_load_and_their_first_episode_runs(name, tmp_p
     spec['duration'] = 0.2
     res = run_episode(plan(spec)[0], tmp_path)
     assert res['status'] == 'ok', res['error']
+
+
+def test_crumple_lifts_the_cloth_at_random_points_and_drops_it(tmp_path):
+    spec = small_spec(episodes=1, duration=2.0, base='', randomize={},
+                      scene={'mesh.nx': 8, 'mesh.ny': 8, 'pinned.sets': ['none'],
+                             'obstacles.names': ['ground'],
+                             'obstacles.ground.shape': 'plane'},
+                      init={'crumple': {'height': 0.3, 'lifts': 1}})
+    ep = plan(load_spec(spec))[0]
+    assert len(ep.init['picks']) == 1
+    res = run_episode(ep, tmp_path)
+    assert res['status'] == 'ok', res['error']
+    msgs = _messages(tmp_path / 'episodes' / ep.id / 'bag')
+    z = [np.array([p.z for p in m.markers[0].points]) for t, _, m in msgs
+         if t == '/cloth_node/mesh']
+    assert max(zi.max() for zi in z) > 0.5          # lifted from 0.3 m by 0.3 m
+    assert np.median(z[-1]) < 0.03                  # and fallen back onto the ground
+    assert res['metrics']['coverage'] < 0.95        # no longer a flat square metre

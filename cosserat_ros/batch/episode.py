@@ -48,9 +48,9 @@ __all__ = ['run_episode', 'EpisodeFailed', 'NODE', 'cpu_model', 'coverage',
 NODE = 'cloth_node'
 #: [m] the raster step of the coverage
 COVERAGE_PIXEL = 5e-3
-#: a pick-and-place move's phases, as fractions of its slot: lift, carry, lower, release
-#: at 0.8, the rest to settle
-PHASES = (0.25, 0.40, 0.15)
+#: [m/s] the crumpling lifts' speed, and [s] the time given to each before the policy
+CRUMPLE_SPEED = 1.0
+CRUMPLE_TIME = 1.5
 
 
 class EpisodeFailed(RuntimeError):
@@ -186,56 +186,75 @@ class Timeline:
         return out
 
 
-def _pick_place(sim, tl: Timeline, start: int, slot: int, picks, places, radius: float,
-                lift: float, centre0, size0, handles: Dict[str, Optional[int]],
-                names: List[str]):
-    """One move of every handle in ``names``: grasp the top-most vertex under the pick
-    point (``picks``: per handle (u, v) in [-1, 1]^2 of the cloth's footprint then), lift
-    by ``lift``, carry to the place point (``places``: (u, v) * the cloth's size about
-    where it started), lower by half the lift, release."""
+def pick_place(sim, tl: Timeline, start: int, moves, radius: float, lift: float,
+               speed: float, settle: float, centre0, size0,
+               handles: Dict[str, Optional[int]], names: List[str]) -> None:
+    """Schedule ``moves`` (per move: per handle a pick (u, v) and a place (u, v)) from
+    step ``start``, one after the other: grasp the top-most vertex within ``radius``
+    under each pick point ((u, v) in [-1, 1]^2 of the cloth's footprint then), lift by
+    ``lift`` [m], carry to the place point ((u, v) times the cloth's half size about
+    ``centre0``, where it started), lower by half the lift, release, and let it settle
+    ``settle`` [s] before the next. Every leg at ``speed`` [m/s] (the farthest handle's
+    distance over the speed); each phase is scheduled when the previous one ends, so
+    the moves run as far as the episode lasts."""
     dt = sim.dt
-    t_lift, t_carry, t_lower = (max(1, int(round(f * slot))) for f in PHASES)
-    state = {}
+    todo = list(moves)
 
-    def grasp():
+    def steps_for(distance: float) -> int:
+        return max(1, int(math.ceil(distance / speed / dt)))
+
+    def held():
+        return [(name, handles[name]) for name in names
+                if handles.get(name) is not None and handles[name] in sim.handles]
+
+    def go_to(targets, then):
+        """Move each held handle to its target; ``then`` when the farthest arrives."""
+        far = 0.0
+        for name, hid in held():
+            p = np.array(sim.handles[hid]['position'], dtype=float)
+            q = targets(name, p)
+            far = max(far, float(np.linalg.norm(q - p)))
+        k = steps_for(max(far, 1e-9))
+        for name, hid in held():
+            p = np.array(sim.handles[hid]['position'], dtype=float)
+            sim.move_handle(hid, targets(name, p), duration=k * dt)
+        tl.at(sim.step_count + k, then)
+
+    def begin():
+        if not todo:
+            return
+        picks, places = todo.pop(0)
         x = sim.positions
         lo, hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
         centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
         for name, uv in zip(names, picks):
             v = top_vertex(x, centre + np.asarray(uv) * half, radius)
             try:
-                hid = sim.grasp(point=x[v], radius=radius, name=name)
+                handles[name] = sim.grasp(point=x[v], radius=radius, name=name)
             except ValueError:                 # its vertices are another handle's
-                continue
-            handles[name] = hid
-            state[name] = x[v].copy()
+                handles[name] = None
+        place = {name: np.asarray(centre0) + np.asarray(uv) * size0
+                 for name, uv in zip(names, places)}
 
-    def move(to_xy: bool, dz: float, steps: int):
-        def go():
-            for name, uv in zip(names, places):
-                hid = handles.get(name)
-                if hid is None or hid not in sim.handles:
-                    continue
-                p = np.array(sim.handles[hid]['position'], dtype=float)
-                if to_xy:
-                    p[:2] = np.asarray(centre0) + np.asarray(uv) * size0
-                p[2] += dz
-                sim.move_handle(hid, p, duration=steps * dt)
-        return go
+        def up(name, p):
+            return p + (0.0, 0.0, lift)
 
-    def release():
-        for name in names:
-            hid = handles.pop(name, None)
-            if hid is not None and hid in sim.handles:
+        def over(name, p):
+            return np.array([place[name][0], place[name][1], p[2]])
+
+        def down(name, p):
+            return p - (0.0, 0.0, 0.5 * lift)
+
+        def release():
+            for name, hid in held():
                 sim.release(hid)
-            handles[name] = None
+            for name in names:
+                handles[name] = None
+            tl.at(sim.step_count + max(1, int(round(settle / dt))), begin)
 
-    tl.at(start, grasp)
-    tl.at(start, move(False, lift, t_lift))
-    tl.at(start + t_lift, move(True, 0.0, t_carry))
-    tl.at(start + t_lift + t_carry, move(False, -0.5 * lift, t_lower))
-    tl.at(start + t_lift + t_carry + t_lower, release)
-    return start + t_lift + t_carry + t_lower
+        go_to(up, lambda: go_to(over, lambda: go_to(down, release)))
+
+    tl.at(start, begin)
 
 
 # ---------------------------------------------------------------- the run
@@ -372,25 +391,20 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
     x0 = sim.positions
     centre0 = 0.5 * (x0[:, :2].min(axis=0) + x0[:, :2].max(axis=0))
     size0 = 0.5 * (x0[:, :2].max(axis=0) - x0[:, :2].min(axis=0))
-    start = 0
     if episode.init['kind'] == 'crumple':
+        # picked at random points, lifted and dropped; then the episode's policy
         names = ['crumple']
-        lift_slot = int(round(0.6 / dt))
-        for uv in episode.init['picks']:
-            _pick_place(sim, tl, start, lift_slot, [uv], [[0.0, 0.0]], 0.03,
-                        float(episode.init['height']), centre0, np.zeros(2), handles,
-                        ['crumple'])
-            start += int(round(1.0 / dt))
+        pick_place(sim, tl, 0, [([uv], [[0.0, 0.0]]) for uv in episode.init['picks']],
+                   0.03, float(episode.init['height']), CRUMPLE_SPEED, 0.5, centre0,
+                   np.zeros(2), handles, ['crumple'])
     if policy['kind'] == 'pick_place':
-        k = int(policy['handles'])
-        pnames = [f'h{i}' for i in range(k)]
+        pnames = [f'h{i}' for i in range(int(policy['handles']))]
         names += pnames
-        moves = int(policy['moves'])
-        slot = max(1, int((end - start) * 0.8 / moves))
-        for m in range(moves):
-            _pick_place(sim, tl, start + m * slot, slot, policy['picks'][m],
-                        policy['places'][m], float(policy['radius']),
-                        float(policy['lift']), centre0, size0, handles, pnames)
+        start = 0 if episode.init['kind'] != 'crumple' else int(round(
+            len(episode.init['picks']) * CRUMPLE_TIME / dt))
+        pick_place(sim, tl, start, list(zip(policy['picks'], policy['places'])),
+                   float(policy['radius']), float(policy['lift']), float(policy['speed']),
+                   float(policy['settle']), centre0, size0, handles, pnames)
     script = None
     if policy['kind'] == 'script':
         try:

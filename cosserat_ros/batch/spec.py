@@ -23,7 +23,9 @@ Distributions: ``{uniform: [lo, hi]}``, ``{loguniform: [lo, hi]}`` (0 < lo), ``{
 azimuth_deg, default drawn in [0, 360), its lowest point ``height`` above the highest
 obstacle under it), or ``{crumple: {height, lifts}}`` (dropped, then picked at a random
 point, lifted and let fall ``lifts`` times before the episode's time counts). ``policy``:
-``none``, ``{pick_place: {handles: 1|2, moves, radius, lift}}`` or ``{script:
+``none``, ``{pick_place: {handles: 1|2, moves, radius, lift, speed, settle}}`` (one move
+after the other at ``speed`` [m/s], ``settle`` [s] between them: :func:`.episode.pick_place`)
+or ``{script:
 'module:function'}``, a function ``f(sim, rng, episode)`` called with the simulator, the
 episode's generator (``numpy.random.default_rng(episode.seed)``) and the episode; it steps
 the simulator itself (``sim.step`` records at the spec's rates and stops at the episode's
@@ -65,7 +67,8 @@ RECORD_KEYS = {'mesh_hz': 10.0, 'points_hz': 0.0}
 INIT_KINDS = {'flat': {'height': 0.0},
               'drop': {'height': 0.2, 'tilt_deg': 0.0, 'azimuth_deg': None},
               'crumple': {'height': 0.2, 'lifts': 1}}
-PICK_PLACE = {'handles': 1, 'moves': 1, 'radius': 0.03, 'lift': 0.2}
+PICK_PLACE = {'handles': 1, 'moves': 1, 'radius': 0.03, 'lift': 0.2, 'speed': 0.5,
+              'settle': 0.5}
 
 
 class SpecError(ValueError):
@@ -297,9 +300,10 @@ def _load_policy(v) -> dict:
             raise SpecError(f'policy.pick_place.handles must be 1 or 2, got '
                             f'{out["handles"]!r}')
         _number('policy.pick_place.moves', out['moves'], 1, 100, integer=True)
-        for k in ('radius', 'lift'):
+        for k, lo, hi in (('radius', 1e-4, 10.0), ('lift', 0.0, 10.0),
+                          ('speed', 1e-3, 100.0), ('settle', 0.0, 3600.0)):
             if not _is_dist(out[k]):
-                _number(f'policy.pick_place.{k}', out[k], 1e-4, 10.0)
+                _number(f'policy.pick_place.{k}', out[k], lo, hi)
     return out
 
 
