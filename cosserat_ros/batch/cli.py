@@ -1,6 +1,6 @@
 """``batch``: randomized cloth episodes on Ray, and what to look at afterwards.
 
-    batch run SPEC.yaml -o OUT [--workers N] [--address ADDR] [--resume]
+    batch run SPEC.yaml -o OUT [--workers N] [--threads T] [--address ADDR] [--resume]
               [--max-retries K] [--episode-timeout S] [--progress bar|jsonl|none]
     batch status OUT                 # counts by status, rate, what failed and why
     batch verify OUT                 # exit 0 only if every ok episode's bag is sound
@@ -38,6 +38,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument('-o', '--out', required=True, help='the run directory')
     r.add_argument('--workers', type=int, default=None,
                    help='episodes at once (default: the CPUs Ray has)')
+    r.add_argument('--threads', type=int, default=None,
+                   help='numba threads per worker (default: the CPUs over the workers)')
     r.add_argument('--address', default=None,
                    help='a Ray cluster to join: auto, HOST:PORT or ray://...')
     r.add_argument('--resume', action='store_true',
@@ -187,13 +189,20 @@ def montage(out: str, output: str, most: int = 36) -> int:
     return 0
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     from .spec import SpecError
     try:
         if args.command == 'run':
+            import signal
+            signal.signal(signal.SIGTERM, _interrupt)     # stop as on Ctrl-C: cleanly
             from .engine import run_batch
             summary = run_batch(args.spec, args.out, workers=args.workers,
+                                threads=args.threads,
                                 address=args.address, resume=args.resume,
                                 max_retries=args.max_retries,
                                 episode_timeout=args.episode_timeout,
@@ -211,6 +220,10 @@ def main(argv=None) -> int:
     except SpecError as exc:
         print(f'batch: {exc}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f'batch: interrupted; what finished is in {args.out}/manifest.jsonl, and '
+              '`batch run ... --resume` finishes the run', file=sys.stderr)
+        return 130
 
 
 if __name__ == '__main__':

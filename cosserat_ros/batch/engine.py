@@ -251,26 +251,31 @@ def _ray_init(address: Optional[str], temp_dir: Optional[str]):
     return watcher
 
 
-def _threads(workers: int) -> int:
-    """numba threads per worker: the CPUs over the workers, at most the smallest node's
-    CPUs (a task must fit on one node)."""
+def _threads(workers: int, asked: Optional[int] = None) -> int:
+    """numba threads per worker: ``asked``, or the CPUs over the workers; at most the
+    smallest node's CPUs (a task must fit on one node)."""
     import ray
     nodes = [n for n in ray.nodes() if n.get('Alive')]
     cpus = [int(n['Resources'].get('CPU', 0)) for n in nodes]
     cpus = [c for c in cpus if c > 0] or [1]
-    return max(1, min(sum(cpus) // max(1, workers), min(cpus)))
+    want = asked if asked is not None else sum(cpus) // max(1, workers)
+    return max(1, min(want, min(cpus)))
 
 
 def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[str] = None,
               resume: bool = False, max_retries: int = 2,
               episode_timeout: Optional[float] = None, progress: str = 'none',
-              ray_temp_dir: Optional[str] = None) -> dict:
+              ray_temp_dir: Optional[str] = None, threads: Optional[int] = None) -> dict:
     """Run every episode of ``spec`` (a path, a dict or :func:`.spec.load_spec`'s result)
     into ``out_dir`` on Ray (module docstring); returns the summary (counts, paths).
-    :class:`.spec.SpecError` for a bad spec or directory, before any work."""
+    ``workers``: episodes at once (default: the cluster's CPUs); ``threads``: numba
+    threads of each (default: the CPUs over the workers). :class:`.spec.SpecError` for
+    a bad spec, option or directory, before any work."""
     spec = load_spec(spec)
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise SpecError(f'--workers must be a positive integer, got {workers!r}')
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise SpecError(f'--threads must be a positive integer, got {threads!r}')
     if not isinstance(max_retries, int) or max_retries < 0:
         raise SpecError(f'--max-retries must be an integer >= 0, got {max_retries!r}')
     if episode_timeout is not None and not (episode_timeout > 0
@@ -301,7 +306,7 @@ def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[st
                         sum(ln['status'] == 'ok' for ln in manifest.lines.values()),
                         sum(ln['status'] != 'ok' for ln in manifest.lines.values()))
         if todo:
-            _run_on_ray(todo, out, manifest, prog, workers, address, max_retries,
+            _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retries,
                         episode_timeout, ray_temp_dir)
         prog.close()
     finally:
@@ -327,7 +332,7 @@ def _failed_line(ep: Episode, error: str, attempts: int, deterministic: bool = T
             'version': package_version(), 'spec_digest': ep.spec_digest}
 
 
-def _run_on_ray(todo, out, manifest, prog, workers, address, max_retries, timeout,
+def _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retries, timeout,
                 ray_temp_dir):
     import ray
     from ray import exceptions as rex
@@ -336,7 +341,7 @@ def _run_on_ray(todo, out, manifest, prog, workers, address, max_retries, timeou
     try:
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get('CPU', 1)))
-        threads = _threads(workers)
+        threads = _threads(workers, threads)
         task = ray.remote(_episode_task).options(num_cpus=threads, max_retries=0,
                                                  name='cosserat_episode')
         pending = list(reversed(todo))          # popped from the end: in index order

@@ -28,6 +28,8 @@ off, and how its extra cost grows with N):
    stepped alone in this process right before (what its step allowed in that minute);
    and the shipped ``config/cloth.yaml`` alone, beside one busy process, and paused (its
    CPU use).
+4. ``batch`` (:mod:`.bench_batch`): the batch engine on the first example spec, a plain
+   loop against Ray with one and two workers, and the time to the first episode.
 """
 from __future__ import annotations
 
@@ -862,6 +864,9 @@ def main(argv=None):
     ap.add_argument('--self-sizes', type=int, nargs='*', default=[40, 80, 160],
                     help='N for the self-collision part\'s folded stack (none: skip the '
                     'part)')
+    ap.add_argument('--batch-episodes', type=int, default=6,
+                    help='episodes of the batch part (tools/bench_batch.py; 0: skip it; '
+                    'needs the batch extra)')
     ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the self-collision part\'s crumpled cloth (160 adds ~10 '
                     'minutes: its 1.5 s drop); the extra cost\'s growth is fitted over them')
@@ -885,6 +890,9 @@ def main(argv=None):
         part_self(a.self_sizes, a.crumpled_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
+    if a.batch_episodes > 0:
+        from .bench_batch import part_batch
+        part_batch(a.batch_episodes)
     print(f'\n# threading layer: {numba.threading_layer()}')
     return 0
 
