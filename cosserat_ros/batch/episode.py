@@ -400,8 +400,9 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
     if policy['kind'] == 'pick_place':
         pnames = [f'h{i}' for i in range(int(policy['handles']))]
         names += pnames
-        start = 0 if episode.init['kind'] != 'crumple' else int(round(
-            len(episode.init['picks']) * CRUMPLE_TIME / dt))
+        start = int(round(float(policy['start']) / dt))
+        if episode.init['kind'] == 'crumple':
+            start += int(round(len(episode.init['picks']) * CRUMPLE_TIME / dt))
         pick_place(sim, tl, start, list(zip(policy['picks'], policy['places'])),
                    float(policy['radius']), float(policy['lift']), float(policy['speed']),
                    float(policy['settle']), centre0, size0, handles, pnames)

@@ -23,8 +23,9 @@ Distributions: ``{uniform: [lo, hi]}``, ``{loguniform: [lo, hi]}`` (0 < lo), ``{
 azimuth_deg, default drawn in [0, 360), its lowest point ``height`` above the highest
 obstacle under it), or ``{crumple: {height, lifts}}`` (dropped, then picked at a random
 point, lifted and let fall ``lifts`` times before the episode's time counts). ``policy``:
-``none``, ``{pick_place: {handles: 1|2, moves, radius, lift, speed, settle}}`` (one move
-after the other at ``speed`` [m/s], ``settle`` [s] between them: :func:`.episode.pick_place`)
+``none``, ``{pick_place: {handles: 1|2, moves, radius, lift, speed, settle, start}}`` (from
+``start`` [s], one move after the other at ``speed`` [m/s], ``settle`` [s] between them:
+:func:`.episode.pick_place`)
 or ``{script:
 'module:function'}``, a function ``f(sim, rng, episode)`` called with the simulator, the
 episode's generator (``numpy.random.default_rng(episode.seed)``) and the episode; it steps
@@ -68,7 +69,7 @@ INIT_KINDS = {'flat': {'height': 0.0},
               'drop': {'height': 0.2, 'tilt_deg': 0.0, 'azimuth_deg': None},
               'crumple': {'height': 0.2, 'lifts': 1}}
 PICK_PLACE = {'handles': 1, 'moves': 1, 'radius': 0.03, 'lift': 0.2, 'speed': 0.5,
-              'settle': 0.5}
+              'settle': 0.5, 'start': 0.0}
 
 
 class SpecError(ValueError):
@@ -301,7 +302,8 @@ def _load_policy(v) -> dict:
                             f'{out["handles"]!r}')
         _number('policy.pick_place.moves', out['moves'], 1, 100, integer=True)
         for k, lo, hi in (('radius', 1e-4, 10.0), ('lift', 0.0, 10.0),
-                          ('speed', 1e-3, 100.0), ('settle', 0.0, 3600.0)):
+                          ('speed', 1e-3, 100.0), ('settle', 0.0, 3600.0),
+                          ('start', 0.0, MAX_DURATION)):
             if not _is_dist(out[k]):
                 _number(f'policy.pick_place.{k}', out[k], lo, hi)
     return out
