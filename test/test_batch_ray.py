@@ -285,3 +285,37 @@ def test_a_node_removed_mid_batch_loses_no_episode(cluster, tmp_path):
     lines = _every_episode_ok_once(out, 6)
     nodes = {ln['node'] for ln in lines}
     assert len(nodes) == 2                              # some ran there before it went
+
+
+def test_a_driver_killed_on_a_cluster_is_resumed_there(cluster, tmp_path):
+    """The driver joined a running cluster (``--address``) and is SIGKILLed: the cluster
+    is not its to stop, its tasks die with it, and ``--resume`` finishes the run there."""
+    c, _ = cluster
+    path = tmp_path / 'spec.yaml'
+    path.write_text(yaml.safe_dump(spec(episodes=5, duration=1.0)))
+    out = tmp_path / 'out'
+    args = [str(BATCH), 'run', str(path), '-o', str(out), '--address', c.address,
+            '--progress', 'jsonl']
+    env = dict(os.environ, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER='0')
+    driver = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                              text=True, env=env)
+    assert json.loads(driver.stdout.readline())['status'] == 'ok'
+    driver.send_signal(signal.SIGKILL)
+    driver.wait(timeout=30)
+    time.sleep(1.0)
+    assert not _episode_workers() or _wait_idle()
+    r = subprocess.run(args[:-2] + ['--resume', '--progress', 'none'], capture_output=True,
+                       text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr
+    _every_episode_ok_once(out, 5)
+
+
+def _wait_idle(timeout: float = 30.0) -> bool:
+    """Whether the killed driver's tasks stop running within ``timeout`` (Ray cancels
+    the tasks of a job whose driver died)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not _episode_workers():
+            return True
+        time.sleep(0.5)
+    return False

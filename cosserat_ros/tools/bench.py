@@ -864,7 +864,7 @@ def main(argv=None):
     ap.add_argument('--self-sizes', type=int, nargs='*', default=[40, 80, 160],
                     help='N for the self-collision part\'s folded stack (none: skip the '
                     'part)')
-    ap.add_argument('--batch-episodes', type=int, default=6,
+    ap.add_argument('--batch-episodes', type=int, default=8,
                     help='episodes of the batch part (tools/bench_batch.py; 0: skip it; '
                     'needs the batch extra)')
     ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
