@@ -19,7 +19,7 @@ import json
 import math
 from pathlib import Path
 import sys
-from typing import List
+from typing import List, Optional
 
 __all__ = ['main', 'status', 'verify', 'montage']
 
@@ -68,13 +68,20 @@ def _lines(out: str) -> List[dict]:
     return read_manifest(out)
 
 
+def _planned(out: str) -> Optional[int]:
+    """How many episodes the run's spec (``OUT/spec.json``) plans, None without one."""
+    from .engine import SPEC_FILE
+    try:
+        return json.loads((Path(out) / SPEC_FILE).read_text())['episodes']
+    except (OSError, ValueError, KeyError):
+        return None
+
+
 def status(out: str) -> int:
     """Print the counts by status, the rate and each failure's reason; 0 if all ok."""
     lines = _lines(out)
-    try:
-        total = json.loads((Path(out) / 'spec.json').read_text())['episodes']
-    except (OSError, ValueError, KeyError):
-        total = len(lines)
+    total = _planned(out)
+    total = len(lines) if total is None else total
     counts = collections.Counter(ln['status'] for ln in lines)
     wall = sum(ln.get('wall_time') or 0.0 for ln in lines)
     sim = sum(ln.get('sim_time') or 0.0 for ln in lines)
@@ -112,12 +119,11 @@ def verify(out: str) -> int:
     problems = []
     ids = collections.Counter(ln['id'] for ln in lines)
     problems += [f'{i}: {c} manifest lines' for i, c in ids.items() if c > 1]
-    try:
-        total = json.loads((Path(out) / 'spec.json').read_text())['episodes']
-        if len(ids) != total:
-            problems.append(f'{total - len(ids)} of {total} episodes have no manifest line')
-    except (OSError, ValueError, KeyError):
+    total = _planned(out)
+    if total is None:
         problems.append('no spec.json')
+    elif len(ids) != total:
+        problems.append(f'{total - len(ids)} of {total} episodes have no manifest line')
     checked = 0
     for ln in lines:
         if ln['status'] != 'ok':

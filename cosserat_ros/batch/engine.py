@@ -40,7 +40,7 @@ import time
 from typing import Dict, List, Optional
 import uuid
 
-from .episode import commit_directory, cpu_model, package_version
+from .episode import commit_directory, result_line
 from .spec import Episode, SpecError, check_episode, load_spec, plan, spec_digest
 
 __all__ = ['run_batch', 'read_manifest', 'MANIFEST', 'Progress']
@@ -323,13 +323,8 @@ def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[st
 
 
 def _failed_line(ep: Episode, error: str, attempts: int, deterministic: bool = True) -> dict:
-    import socket
-    return {'id': ep.id, 'index': ep.index, 'seed': ep.seed, 'params': ep.params,
-            'init': ep.init, 'policy': ep.policy, 'status': 'failed', 'error': error,
-            'deterministic': deterministic, 'attempts': attempts, 'metrics': None,
-            'sim_time': 0.0, 'wall_time': 0.0, 'host': socket.gethostname(),
-            'cpu': cpu_model(), 'node': None, 'bag_sha256': None,
-            'version': package_version(), 'spec_digest': ep.spec_digest}
+    return result_line(ep, status='failed', error=error, deterministic=deterministic,
+                       attempts=attempts, node=None)
 
 
 def _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retries, timeout,

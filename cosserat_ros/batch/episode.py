@@ -42,7 +42,7 @@ import numpy as np
 from .spec import Episode, resolve_script
 
 __all__ = ['run_episode', 'EpisodeFailed', 'NODE', 'cpu_model', 'coverage',
-           'commit_directory', 'package_version']
+           'commit_directory', 'package_version', 'result_line']
 
 #: the node name the bag's topics are under (as a node of that name publishes them)
 NODE = 'cloth_node'
@@ -96,37 +96,31 @@ def _rotation(axis, angle: float) -> np.ndarray:
 def support_height(sim, lo_xy, hi_xy) -> float:
     """The highest point [m] of the obstacles over the rectangle [lo_xy, hi_xy] (their
     bounding boxes; a plane at the rectangle's corners); -inf if none is under it."""
+    from ..core.contact import rotation_matrix
     top = -math.inf
     corners = np.array([[lo_xy[0], lo_xy[1]], [lo_xy[0], hi_xy[1]], [hi_xy[0], lo_xy[1]],
                         [hi_xy[0], hi_xy[1]]])
     for oid, d in sim.obstacles.items():
         c = np.asarray(d['position'], dtype=float)
+        R = rotation_matrix(d['orientation'])
         shape = d['shape']
-        if shape == 'plane':
-            n = np.asarray(d.get('normal', (0.0, 0.0, 1.0)), dtype=float)
-            p = np.asarray(d.get('point', c), dtype=float)
-            from ..tools.render import _quat_matrix
-            n = _quat_matrix(d['orientation']) @ n if 'normal' not in d else n
+        if shape == 'plane':                        # through c, normal R e_z
+            n = R[:, 2]
             if abs(n[2]) < 1e-6:
                 continue                            # a wall: nothing under the cloth
-            zs = p[2] - (n[0] * (corners[:, 0] - p[0]) + n[1] * (corners[:, 1] - p[1])) / n[2]
+            zs = c[2] - (n[0] * (corners[:, 0] - c[0]) + n[1] * (corners[:, 1] - c[1])) / n[2]
             top = max(top, float(zs.max()))
             continue
         if shape == 'sphere':
             half = np.full(3, d['radius'])
         elif shape == 'box':
-            from ..tools.render import _quat_matrix
-            half = np.abs(_quat_matrix(d['orientation'])) @ np.asarray(d['half_extents'])
+            half = np.abs(R) @ np.asarray(d['half_extents'])
         elif shape in ('capsule', 'cylinder'):
-            from ..tools.render import _quat_matrix
-            axis = _quat_matrix(d['orientation'])[:, 2]
             extra = d['radius'] if shape == 'capsule' else 0.0
-            half = np.abs(axis) * (d['half_length'] + extra) + d['radius']
+            half = np.abs(R[:, 2]) * (d['half_length'] + extra) + d['radius']
         else:                                       # mesh: its vertices, posed
-            from ..tools.render import _quat_matrix
             verts, _ = sim.obstacle_mesh(oid)
-            w = verts @ _quat_matrix(d['orientation']).T
-            half = np.abs(w).max(axis=0)
+            half = np.abs(verts @ R.T).max(axis=0)
         if np.all(c[:2] + half[:2] >= lo_xy) and np.all(c[:2] - half[:2] <= hi_xy):
             top = max(top, float(c[2] + half[2]))
     return top
@@ -339,7 +333,8 @@ class _Recorder:
         x = sim.positions
         self._write('/clock', stamp, self.m.clock(stamp))
         pinned = np.flatnonzero(sim.pinned)
-        held = np.array([d['position'] for d in sim.handles.values()])
+        held_ids = sim.handles
+        held = np.array([d['position'] for d in held_ids.values()])
         drawn = self.optional(None, pinned, held)
         self._write(self.topics['mesh'], stamp, self.mesh_msg(
             x, sim.mesh.faces, vertex_colors(self.coloring, sim, densities), stamp,
@@ -352,7 +347,6 @@ class _Recorder:
                 self._write(self.contact_topics[oid], stamp,
                             self.m.wrench(stamp, self.frame, f, t))
                 self.peak_contact = max(self.peak_contact, float(np.linalg.norm(f)))
-        held_ids = sim.handles
         for name, topic in self.handle_topics.items():
             hid = handles.get(name)
             f = t = np.zeros(3)
@@ -511,6 +505,19 @@ class _ScriptStepper:
         self.step(self.remaining_steps)
 
 
+def result_line(episode: Episode, **fields) -> dict:
+    """An episode's manifest line (``status`` 'ok' until ``fields`` say otherwise): what
+    it is, where it ran, and room for its results."""
+    line = {'id': episode.id, 'index': episode.index, 'seed': episode.seed,
+            'params': episode.params, 'init': episode.init, 'policy': episode.policy,
+            'status': 'ok', 'error': None, 'deterministic': True, 'metrics': None,
+            'sim_time': 0.0, 'wall_time': 0.0, 'host': socket.gethostname(),
+            'cpu': cpu_model(), 'bag_sha256': None, 'version': package_version(),
+            'spec_digest': episode.spec_digest}
+    line.update(fields)
+    return line
+
+
 def commit_directory(staged: Path, final: Path) -> bool:
     """Rename the finished ``staged`` directory to ``final``; False (and ``staged``
     removed) if ``final`` exists: another attempt put its episode there first."""
@@ -550,12 +557,7 @@ def run_episode(episode, out_dir) -> dict:
     staged = out / '.tmp' / f'{episode.id}.{uuid.uuid4().hex}'
     staged.mkdir(parents=True)
     t0 = time.perf_counter()
-    result = {'id': episode.id, 'index': episode.index, 'seed': episode.seed,
-              'params': episode.params, 'init': episode.init, 'policy': episode.policy,
-              'status': 'ok', 'error': None, 'deterministic': True, 'metrics': None,
-              'sim_time': 0.0, 'wall_time': 0.0, 'host': socket.gethostname(),
-              'cpu': cpu_model(), 'bag_sha256': None, 'version': package_version(),
-              'spec_digest': episode.spec_digest}
+    result = result_line(episode)
     try:
         with open(staged / 'params.yaml', 'w') as fh:
             yaml.safe_dump(params_file_tree(episode.params), fh, sort_keys=True)

@@ -327,17 +327,16 @@ def resolve_script(target: str):
 
 def _check_values(spec: dict) -> None:
     """The scene and every randomized parameter against the node's declarations: the
-    scene alone, then each randomized name with its extremes / each choice (so a bad
+    scene alone, then each randomized name at each of its bounds or choices (so a bad
     preset or an out-of-range bound is refused before any episode)."""
     from ..ros.params import ConfigError
     from ..ros.scene import check_parameters, initial_material
     try:
-        check_parameters(spec['scene'])
+        initial_material(check_parameters(spec['scene']), spec['scene'])
     except ConfigError as exc:
         raise SpecError(f'scene: {exc}') from None
     for key, dist in spec['randomize'].items():
-        kind, arg = next(iter(dist.items()))
-        for value in (arg if kind == 'choice' else arg):
+        for value in next(iter(dist.values())):      # [lo, hi], or the choices
             given = {**spec['scene'], key: value}
             try:
                 p = check_parameters(given)
@@ -345,11 +344,6 @@ def _check_values(spec: dict) -> None:
                     initial_material(p, given)
             except ConfigError as exc:
                 raise SpecError(f'randomize.{key}: {exc}') from None
-    try:
-        p = check_parameters(spec['scene'])
-        initial_material(p, spec['scene'])
-    except ConfigError as exc:
-        raise SpecError(f'scene: {exc}') from None
 
 
 def spec_digest(spec: dict) -> str:

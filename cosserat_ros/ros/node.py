@@ -78,7 +78,7 @@ from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
 from .pacing import Pacer, ThreadTuner
 from .params import (AIR_KEYS, check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
                      MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
-                     PARAMETERS, params_files, pin_set, pinned_indices,
+                     PARAMETERS, params_files, pin_set,
                      RUNTIME_FLOATS, unknown_parameters, vec3, wind as checked_wind)
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile']
@@ -159,11 +159,9 @@ class ClothNode(Node):
         material = self._initial_material(p)
         scene.check_solver(p)
         self.implicit = p['solver'] == 'implicit'
-        gravity = vec3(p['gravity'], 'gravity')
+        settings = scene.checked_settings(p, self.mesh)
         self._max_wind = p['max_wind']
-        self._steady_wind = checked_wind(p['air.wind'], self._max_wind)
-        air = scene.build_air(bool(p['air.enabled']), {k: p['air.' + k] for k in AIR_KEYS})
-        pins = pinned_indices(self.mesh, p['pinned.indices'], p['pinned.sets'])
+        self._steady_wind = settings.wind
         check_dt(p['dt'])
         t0 = time.perf_counter()
         # with a cold compile cache, a second process compiles on the other core what the
@@ -197,15 +195,8 @@ class ClothNode(Node):
         commands.point_forces(np.zeros((1, 6)), self.sim.positions, self.mesh.faces)
         if not self.observe_only:
             mesh_distance_field(*warmup.TETRAHEDRON, 0.25, 0.1)
-        self.sim.gravity = gravity
-        self.sim.air = air
-        self.sim.wind = self._steady_wind
-        if len(pins):
-            self.sim.pin(pins)
+        scene.apply_settings(self.sim, settings, p)
         self.frame_id = p['frame_id']
-        self.sim.contact_thickness = p['contact.thickness']
-        self.sim.self_friction = p['contact.self_friction']
-        self.sim.self_collision = bool(p['contact.self'])
         self._wrench_pubs: Dict[int, object] = {}
         self._marker_seen: Dict[int, Tuple[float, np.ndarray, np.ndarray]] = {}
         self._declared_obstacles(p['obstacles.names'])

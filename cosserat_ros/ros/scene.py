@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Dict, Iterable, Optional
+from typing import Dict, Iterable, NamedTuple, Optional
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from .params import (AIR_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE_KEYS, PARAME
                      vec3, wind)
 
 __all__ = ['check_parameters', 'build_mesh', 'initial_material', 'build_air',
-           'build_simulator', 'resolve_path', 'flatten', 'params_file_tree',
+           'Settings', 'checked_settings', 'apply_settings', 'build_simulator', 'resolve_path', 'flatten', 'params_file_tree',
            'read_params_file', 'NODE_NAME']
 
 #: the node name a params file written here is for
@@ -133,8 +133,8 @@ def _typed(name: str, value, kind: str):
             return out
         return scalar(value, kind)
     except TypeError:
-        raise ConfigError(f'{name} must be {"a list of " + kind[:-2] if kind.endswith("[]") else "a " + kind}'
-                          f', got {value!r}') from None
+        what = f'a list of {kind[:-2]}' if kind.endswith('[]') else f'a {kind}'
+        raise ConfigError(f'{name} must be {what}, got {value!r}') from None
 
 
 def _in_range(name: str, value, desc) -> None:
@@ -243,6 +243,38 @@ def add_declared_obstacles(sim: ClothSimulator, p: dict) -> None:
             raise ConfigError(f'obstacle {name}: {exc}') from None
 
 
+class Settings(NamedTuple):
+    """What the simulator gets beside its mesh and material, checked before it is built
+    (a bad value fails before any kernel compiles)."""
+    gravity: np.ndarray          # [m/s^2]
+    air: Optional[Air]
+    wind: np.ndarray             # the steady wind [m/s]
+    pins: np.ndarray             # pinned vertex indices
+
+
+def checked_settings(p: dict, mesh) -> Settings:
+    """The gravity, air, steady wind and pinned vertices of ``p`` on ``mesh``, else
+    ConfigError."""
+    return Settings(gravity=vec3(p['gravity'], 'gravity'),
+                    air=build_air(bool(p['air.enabled']),
+                                  {k: p['air.' + k] for k in AIR_KEYS}),
+                    wind=wind(p['air.wind'], p['max_wind']),
+                    pins=pinned_indices(mesh, p['pinned.indices'], p['pinned.sets']))
+
+
+def apply_settings(sim: ClothSimulator, settings: Settings, p: dict) -> None:
+    """Give ``sim`` the checked ``settings`` and the contact parameters of ``p``
+    (thickness, self-collision and its friction)."""
+    sim.gravity = settings.gravity
+    sim.air = settings.air
+    sim.wind = settings.wind
+    if len(settings.pins):
+        sim.pin(settings.pins)
+    sim.contact_thickness = p['contact.thickness']
+    sim.self_friction = p['contact.self_friction']
+    sim.self_collision = bool(p['contact.self'])
+
+
 def build_simulator(p: dict, given: Iterable[str] = ()) -> ClothSimulator:
     """The simulator of checked parameters ``p`` (:func:`check_parameters`) as the node
     starts it: mesh, material (``given``: the names set explicitly, for a preset's
@@ -252,10 +284,7 @@ def build_simulator(p: dict, given: Iterable[str] = ()) -> ClothSimulator:
     mesh = build_mesh(p)
     material = initial_material(p, given)
     check_solver(p)
-    gravity = vec3(p['gravity'], 'gravity')
-    steady_wind = wind(p['air.wind'], p['max_wind'])
-    air = build_air(bool(p['air.enabled']), {k: p['air.' + k] for k in AIR_KEYS})
-    pins = pinned_indices(mesh, p['pinned.indices'], p['pinned.sets'])
+    settings = checked_settings(p, mesh)
     check_dt(p['dt'])
     sim = ClothSimulator(mesh, material, dt=p['dt'], divergence=p['divergence'],
                          check_dt=False, solver=p['solver'])
@@ -264,13 +293,6 @@ def build_simulator(p: dict, given: Iterable[str] = ()) -> ClothSimulator:
         sim.solver_tolerance = p['solver.tolerance']
     else:
         check_dt(p['dt'], sim.critical_dt())
-    sim.gravity = gravity
-    sim.air = air
-    sim.wind = steady_wind
-    if len(pins):
-        sim.pin(pins)
-    sim.contact_thickness = p['contact.thickness']
-    sim.self_friction = p['contact.self_friction']
-    sim.self_collision = bool(p['contact.self'])
+    apply_settings(sim, settings, p)
     add_declared_obstacles(sim, p)
     return sim
