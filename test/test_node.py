@@ -269,7 +269,7 @@ def test_bad_commands_rejected_and_simulation_keeps_running(h):
         h.send(kind, msg)
     assert sum(h.node.rejected.values()) == len(bad)
     assert h.node.rejected == {'vertex_forces': 8, 'point_forces': 3, 'force_field': 3,
-                               'wind': 0, 'obstacles': 0, 'handles': 0}
+                               'wind': 0, 'obstacles': 0, 'handles': 0, 'cameras': 0}
     assert not h.node.sim.vertex_forces.any() and not h.node.sim.force_field.any()
     assert _steps(h) > before
     # a flood at kHz rates: all counted, nothing breaks

@@ -23,7 +23,8 @@ import numpy as np
 __all__ = ['CdrWriter', 'mesh_marker_array', 'point_cloud', 'shape_mesh', 'POINT_FIELDS',
            'colormap', 'percentile', 'TRIANGLE_LIST',
            'LINE_LIST', 'SPHERE_LIST', 'MARKER_NAMESPACE', 'MESH_ID', 'WIREFRAME_ID',
-           'PINS_ID', 'HANDLES_ID', 'optional_markers', 'OPTIONAL_MARKERS']
+           'PINS_ID', 'HANDLES_ID', 'optional_markers', 'OPTIONAL_MARKERS', 'image',
+           'camera_info', 'organised_cloud']
 
 TRIANGLE_LIST = 11
 LINE_LIST = 5
@@ -208,6 +209,74 @@ def point_cloud(positions: np.ndarray, velocities: np.ndarray, stamp_ns: int,
     w.array(data.reshape(-1).view(np.uint8), '<u1')
     w.prim('?', True)                                # is_dense
     return w.bytes()
+
+
+def image(pixels: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """Serialised ``sensor_msgs/Image`` of ``pixels``: (h, w) float32 as ``32FC1`` (a
+    depth image in metres, REP 118) or (h, w, 3) uint8 as ``rgb8``; little-endian, rows
+    packed (``step`` = w times the pixel's bytes)."""
+    if pixels.ndim == 2 and pixels.dtype == np.float32:
+        encoding, data = '32FC1', pixels.astype('<f4', copy=False)
+    elif pixels.ndim == 3 and pixels.shape[2] == 3 and pixels.dtype == np.uint8:
+        encoding, data = 'rgb8', pixels
+    else:
+        raise ValueError(f'an image is (h, w) float32 or (h, w, 3) uint8, got '
+                         f'{pixels.shape} {pixels.dtype}')
+    h, w = pixels.shape[:2]
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = CdrWriter()
+    _header(out, sec, nanosec, frame_id)
+    out.prim('I', h)
+    out.prim('I', w)
+    out.string(encoding)
+    out.prim('B', 0)                                 # is_bigendian
+    out.prim('I', data.nbytes // max(h, 1))          # step [bytes]
+    out.array(np.ascontiguousarray(data).reshape(-1).view(np.uint8), '<u1')
+    return out.bytes()
+
+
+def camera_info(K: np.ndarray, width: int, height: int, stamp_ns: int,
+                frame_id: str) -> bytes:
+    """Serialised ``sensor_msgs/CameraInfo`` of an ideal pinhole camera: ``K`` (3x3), no
+    distortion (``plumb_bob``, D = 0 (5)), R = I, P = [K | 0], no binning, full ROI."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = CdrWriter()
+    _header(out, sec, nanosec, frame_id)
+    out.prim('I', height)
+    out.prim('I', width)
+    out.string('plumb_bob')
+    out.array(np.zeros(5), '<f8')
+    out.prim('d', *np.asarray(K, dtype=np.float64).reshape(-1))
+    out.prim('d', *np.eye(3).reshape(-1))
+    out.prim('d', *np.hstack([K, np.zeros((3, 1))]).reshape(-1))
+    out.prim('I', 0, 0)                              # binning
+    out.prim('I', 0, 0, 0, 0)                        # roi: offsets, size (0: full)
+    out.prim('?', False)                             # roi.do_rectify
+    return out.bytes()
+
+
+def organised_cloud(points: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """Serialised organised ``sensor_msgs/PointCloud2`` of (h, w, 3) float32 points: one
+    per pixel, row-major, fields x y z float32, NaN where nothing was hit (not dense)."""
+    h, w = points.shape[:2]
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = CdrWriter()
+    _header(out, sec, nanosec, frame_id)
+    out.prim('I', h)
+    out.prim('I', w)
+    out.prim('I', 3)
+    for k, name in enumerate('xyz'):
+        out.string(name)
+        out.prim('I', 4 * k)
+        out.prim('B', _FLOAT32)
+        out.prim('I', 1)
+    out.prim('?', False)                             # is_bigendian
+    out.prim('I', 12)                                # point_step
+    out.prim('I', 12 * w)                            # row_step
+    data = np.ascontiguousarray(points, dtype='<f4')
+    out.array(data.reshape(-1).view(np.uint8), '<u1')
+    out.prim('?', False)                             # is_dense: NaN where no hit
+    return out.bytes()
 
 
 def shape_mesh(positions: np.ndarray, faces: np.ndarray) -> bytes:

@@ -20,11 +20,11 @@ from typing import Callable, Dict, List, Optional
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, WrenchStamped
+from geometry_msgs.msg import Point, PoseStamped, WrenchStamped
 from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import Marker, MarkerArray
 
-__all__ = ['clock', 'wrench', 'obstacle_markers', 'mesh_triangle_points', 'status',
+__all__ = ['clock', 'wrench', 'pose', 'obstacle_markers', 'mesh_triangle_points', 'status',
            'energy_status', 'OBSTACLE_COLOR', 'PLANE_SIZE', 'PLANE_THICKNESS']
 
 #: RGBA of every obstacle marker
@@ -58,6 +58,18 @@ def wrench(stamp_ns: int, frame_id: str, force, torque) -> WrenchStamped:
     w.wrench.force.x, w.wrench.force.y, w.wrench.force.z = (float(c) for c in force)
     w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = (float(c) for c in torque)
     return w
+
+
+def pose(stamp_ns: int, frame_id: str, position, orientation) -> PoseStamped:
+    """``geometry_msgs/PoseStamped`` in ``frame_id`` at ``stamp_ns`` [ns]: ``position``
+    [m] and the unit quaternion ``orientation`` (x, y, z, w). A camera's ``pose_out``."""
+    m = PoseStamped()
+    _stamp(m.header, stamp_ns)
+    m.header.frame_id = frame_id
+    m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(c) for c in position)
+    o = m.pose.orientation
+    o.x, o.y, o.z, o.w = (float(c) for c in orientation)
+    return m
 
 
 def mesh_triangle_points(verts, faces) -> List[Point]:

@@ -75,9 +75,10 @@ from ..core.simulator import ClothSimulator, Material, SimulationDiverged, steps
 from . import commands, messages, scene
 from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
                           percentile, point_cloud, shape_mesh, vertex_colors)
+from .cameras import CameraStreams, camera_specs
 from .pacing import Pacer, ThreadTuner
-from .params import (AIR_KEYS, check_choice, check_dt, COLORINGS, ConfigError, HANDLE_KEYS,
-                     MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
+from .params import (AIR_KEYS, CAMERA_KEYS, check_choice, check_dt, COLORINGS, ConfigError,
+                     HANDLE_KEYS, MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
                      PARAMETERS, params_files, pin_set,
                      RUNTIME_FLOATS, unknown_parameters, vec3, wind as checked_wind)
 
@@ -210,7 +211,7 @@ class ClothNode(Node):
         self._field: Optional[Tuple[np.ndarray, float]] = None
         self._wind: Optional[Tuple[np.ndarray, float]] = None     # ~/wind: (v, received)
         self.rejected = {'vertex_forces': 0, 'point_forces': 0, 'force_field': 0,
-                         'wind': 0, 'obstacles': 0, 'handles': 0}
+                         'wind': 0, 'obstacles': 0, 'handles': 0, 'cameras': 0}
         self.paused = False
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
@@ -262,6 +263,10 @@ class ClothNode(Node):
             self._add_wrench_pub(oid)
         self._max_handle_speed = p['handles.max_speed']
         self._handles = self._declared_handles(p['handles.names'], reliable)
+        cameras = self._declared_cameras(p)
+        if cameras:                    # the renderer compiled (or loaded) before any topic
+            next(iter(cameras.values()))['camera'].render(self.sim)
+        self.cameras = CameraStreams(self, cameras, reliable)
         if not self.observe_only:
             self.create_service(Trigger, '~/reset', self.on_reset)
             self.create_service(SetBool, '~/pause', self.on_pause)
@@ -287,7 +292,8 @@ class ClothNode(Node):
         """Refuse names the node does not know (a typo would otherwise start a default
         cloth) and a params file that has no section for this node."""
         known = set(PARAMETERS) | set(self._parameters)        # rclpy's own: use_sim_time
-        for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS)):
+        for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS),
+                            ('cameras', CAMERA_KEYS)):
             known |= {f'{group}.{n}.{k}' for n in p[f'{group}.names'] if n for k in keys}
         bad = unknown_parameters(self._parameter_overrides, known)
         if bad:
@@ -382,6 +388,16 @@ class ClothNode(Node):
                                                   'obstacle').items():
                 values[f'obstacles.{name}.{key}'] = value
         scene.add_declared_obstacles(self.sim, values)
+
+    def _declared_cameras(self, p: dict) -> dict:
+        """The cameras of ``cameras.names``, checked (:func:`.cameras.camera_specs`)."""
+        values = {'cameras.names': self._group_names('cameras', p['cameras.names']),
+                  'publish_rate': p['publish_rate']}
+        for name in values['cameras.names']:
+            for key, value in self._declare_group('cameras', name, CAMERA_KEYS,
+                                                  'camera').items():
+                values[f'cameras.{name}.{key}'] = value
+        return camera_specs(values)
 
     def _declared_handles(self, names, qos):
         """The handles of ``handles.names``: their parameters, topics and service."""
@@ -1045,6 +1061,9 @@ class ClothNode(Node):
             self.publish_contact(stamp)
         if self._handles:
             self.publish_handles(stamp)
+        if self.cameras:
+            self.cameras.publish(self.sim, stamp, colors, not self.paused and self.diverged
+                                 is None, PAUSED_PUBLISH_PERIOD)
         mono = time.monotonic()
         # ~1 Hz while there are obstacles, and once after every change: the last
         # obstacle's removal too (the array is then its DELETEALL alone, which clears it

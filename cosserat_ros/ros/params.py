@@ -153,6 +153,21 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
                                     'obstacles.<name>.shape and its geometry (README); '
                                     "[''] for none", True)),
+    'cameras.names': ([''], _desc('Virtual RGB-D cameras, each with '
+                                  '~/cameras/<name>/{depth,color}/image_raw, camera_info, '
+                                  'pose_out, pose (in) and with cameras.<name>.points '
+                                  'points; cameras.<name>.width, height, fov, position, '
+                                  "orientation, rate, near, far (README); [''] for none",
+                                  True)),
+}
+
+#: the parameters of each camera, cameras.<name>.<key>: key -> default (a camera 2 m
+#: above the origin looking straight down, image x along the world's x;
+#: :mod:`.cameras`)
+CAMERA_KEYS = {
+    'width': 640, 'height': 480, 'fov': 60.0, 'position': [0.0, 0.0, 2.0],
+    'orientation': [1.0, 0.0, 0.0, 0.0], 'rate': 15.0, 'points': False,
+    'near': 0.01, 'far': 10.0,
 }
 
 #: the parameters of each declared handle, handles.<name>.<key>: key -> default

@@ -30,7 +30,7 @@ from ..core.material import Material
 from ..core.mesh import GRID_PATTERNS, MeshError, grid_mesh, load_mesh
 from ..core.simulator import ClothSimulator
 from ..core.solvers.explicit import DIVERGENCE_METHODS
-from .params import (AIR_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE_KEYS, PARAMETERS,
+from .params import (AIR_KEYS, CAMERA_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE_KEYS, PARAMETERS,
                      ConfigError, check_choice, check_dt, obstacle_geometry, pinned_indices,
                      vec3, wind)
 
@@ -152,7 +152,8 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
     ConfigError names the first unknown or bad one."""
     out = {name: default for name, (default, _) in PARAMETERS.items()}
     groups = {}
-    for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS)):
+    for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS),
+                        ('cameras', CAMERA_KEYS)):
         names = given.get(f'{group}.names', PARAMETERS[f'{group}.names'][0])
         names = _typed(f'{group}.names', names, 'str[]')
         names = [n for n in names if n]
@@ -167,8 +168,9 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
             continue
         if name not in out:
             raise ConfigError(f'{name}: not a parameter of the node (see the README\'s '
-                              'table; obstacles.<name>.* and handles.<name>.* need the '
-                              'name in obstacles.names / handles.names)')
+                              'table; obstacles.<name>.*, handles.<name>.* and '
+                              'cameras.<name>.* need the name in obstacles.names, '
+                              'handles.names or cameras.names)')
         value = _typed(name, value, _kind(out[name]))
         if name in PARAMETERS:
             _in_range(name, value, PARAMETERS[name][1])
