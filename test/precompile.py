@@ -33,6 +33,8 @@ def main():
     s.add_obstacle('mesh', vertices=ico.vertices, faces=ico.faces, center=(0, 0, -1))
     s.step(1)
     s.contact_forces()
+    from cosserat_ros.camera import Camera       # the camera's ray cast and shading
+    Camera(4, 3, 60.0, (0, 0, 1), (1, 0, 0, 0)).render(s)
     from cosserat_ros.core.self_contact import warm
     warm()                                       # self-collision's kernels
     from cosserat_ros.core.features import warm as warm_features

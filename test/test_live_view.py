@@ -95,7 +95,9 @@ def node(tmp_path):
                       f'    publish_rate: 20.0\n    status_period: 0.0\n'
                       f'    foxglove: {{port: {port}}}\n'
                       '    obstacles:\n      names: [ball]\n'
-                      '      ball: {shape: sphere, center: [0.5, 0.5, -0.4], radius: 0.1}\n')
+                      '      ball: {shape: sphere, center: [0.5, 0.5, -0.4], radius: 0.1}\n'
+                      '    cameras:\n      names: [top]\n'
+                      '      top: {width: 32, height: 24, rate: 10.0}\n')
     exe = os.path.join(get_package_prefix('cosserat_ros'), 'lib', 'cosserat_ros',
                        'cloth_node')
     proc = subprocess.Popen([exe, '--ros-args', '--params-file', str(params)],
@@ -178,6 +180,31 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     assert [json.loads(panels[f'CallService!{k}']['requestPayload'])
             for k in ('pause', 'resume')] == [{'data': True}, {'data': False}]
     assert json.dumps(layout['layout']).count('CallService!') == 3     # all three shown
+
+
+def test_the_cameras_images_and_calibration_are_shown(node):
+    port, proc = node
+    c = Client(port)
+    base = '/cloth_node/cameras/top'
+    assert c.pump(30, lambda: f'{base}/color' in c.channels), (c.channels, proc.poll())
+    chans = {k: c.channels[f'{base}/{k}'] for k in ('color', 'depth', 'calibration')}
+    assert chans['color']['schemaName'] == 'foxglove.RawImage'
+    assert chans['calibration']['schemaName'] == 'foxglove.CameraCalibration'
+    c.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+        {'id': i, 'channelId': chans[k]['id']} for i, k in
+        ((1, 'color'), (2, 'depth'), (3, 'calibration'))]}))
+    assert c.pump(20, lambda: {1, 2, 3} <= {m[0] for m in c.messages})
+    Image, Calibration = protobuf_class(chans['color']), protobuf_class(chans['calibration'])
+    color = Image.FromString(next(d for s, _, d in c.messages if s == 1))
+    depth = Image.FromString(next(d for s, _, d in c.messages if s == 2))
+    cal = Calibration.FromString(next(d for s, _, d in c.messages if s == 3))
+    assert (color.width, color.height, color.encoding, len(color.data)) == \
+        (32, 24, 'rgb8', 32 * 24 * 3)
+    assert (depth.encoding, depth.step, len(depth.data)) == ('32FC1', 128, 32 * 24 * 4)
+    assert color.frame_id == depth.frame_id == cal.frame_id == 'top_optical_frame'
+    assert (cal.width, cal.height, cal.distortion_model) == (32, 24, 'plumb_bob')
+    assert cal.K[2] == pytest.approx(15.5) and cal.K[5] == pytest.approx(11.5)
+    c._conn.__exit__(None, None, None)
 
 
 def test_an_entity_the_last_frame_showed_is_deleted_when_it_goes():

@@ -141,8 +141,9 @@ class CameraStreams:
         return out
 
     def publish(self, sim, stamp: int, colors: np.ndarray, running: bool,
-                repeat: float) -> None:
-        """Render and publish the cameras that are due (:meth:`due`)."""
+                repeat: float, live=None) -> None:
+        """Render and publish the cameras that are due (:meth:`due`), on the live view too
+        when there is one (:meth:`.live_view.LiveView.publish_camera`)."""
         from .conversions import camera_info, image, organised_cloud
         from . import messages
         now_wall = time.monotonic()
@@ -159,4 +160,6 @@ class CameraStreams:
                 s['cloud'].publish(organised_cloud(cam.points(depth), stamp, frame))
             s['pose_out'].publish(messages.pose(stamp, self.node.frame_id, cam.position,
                                                 cam.orientation))
+            if live is not None:
+                live.publish_camera(name, stamp, frame, depth, rgb, cam.intrinsics)
             s['last'], s['wall'], s['moved'] = sim.time, now_wall, False

@@ -15,6 +15,10 @@ channel / service          schema                          content
                                                             spheres, cylinders, triangles)
                                                             and ``handles`` (spheres)
 ``/cloth_node/energy``     JSON                            the energy terms [J], sim time
+``/cloth_node/cameras/``   foxglove.RawImage,              per camera (``cameras.names``):
+``<name>/color``,          foxglove.CameraCalibration      ``rgb8`` colour, ``32FC1`` depth
+``<name>/depth``,                                          [m], K and P, in frame
+``<name>/calibration``                                     ``<name>_optical_frame``
 ``/cloth_node/reset``      service std_srvs/srv/Trigger,   as ``~/reset``
                            JSON ``{}``
 ``/cloth_node/pause``      service std_srvs/srv/SetBool,   as ``~/pause``
@@ -80,6 +84,7 @@ class LiveView:
             raise ImportError('foxglove.port needs the foxglove-sdk package: pip install '
                               "'cosserat_ros[viz]' (or pip install foxglove-sdk)") from None
         self._fg = foxglove
+        self._prefix = prefix
         self._handlers = handlers
         self._requests: 'queue.Queue' = queue.Queue(maxsize=MAX_PENDING)
         self._meshes: dict = {}
@@ -102,6 +107,7 @@ class LiveView:
             capabilities=[foxglove.Capability.Time, foxglove.Capability.Services],
             supported_encodings=['json'], services=services, message_backlog_size=BACKLOG)
         self.scene = SceneUpdateChannel(f'{prefix}/scene', context=self.context)
+        self._cameras: Dict[str, tuple] = {}
         self.energy = foxglove.Channel(
             f'{prefix}/energy', message_encoding='json', context=self.context,
             schema={'type': 'object', 'properties': {
@@ -200,6 +206,39 @@ class LiveView:
                                       id=i) for i in sorted(OPTIONAL_ENTITIES - shown)]
         self.scene.log(m.SceneUpdate(deletions=gone, entities=entities),
                        log_time=int(stamp_ns))
+
+    def publish_camera(self, name: str, stamp_ns: int, frame_id: str, depth: np.ndarray,
+                       rgb: np.ndarray, K: np.ndarray) -> None:
+        """One camera's images (:mod:`.cameras`) on its channels a client watches (each
+        built at the camera's first image)."""
+        if name not in self._cameras:
+            from foxglove.channels import CameraCalibrationChannel, RawImageChannel
+            base = f'{self._prefix}/cameras/{name}'
+            self._cameras[name] = (
+                RawImageChannel(f'{base}/color', context=self.context),
+                RawImageChannel(f'{base}/depth', context=self.context),
+                CameraCalibrationChannel(f'{base}/calibration', context=self.context))
+        color, dep, calib = self._cameras[name]
+        m = self._fg.messages
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        ts = m.Timestamp(sec, nsec)
+        h, w = depth.shape
+        if color.has_sinks():
+            color.log(m.RawImage(timestamp=ts, frame_id=frame_id, width=w, height=h,
+                                 encoding='rgb8', step=3 * w, data=rgb.tobytes()),
+                      log_time=int(stamp_ns))
+        if dep.has_sinks():
+            dep.log(m.RawImage(timestamp=ts, frame_id=frame_id, width=w, height=h,
+                               encoding='32FC1', step=4 * w,
+                               data=depth.astype('<f4', copy=False).tobytes()),
+                    log_time=int(stamp_ns))
+        if calib.has_sinks():
+            P = np.hstack([K, np.zeros((3, 1))])
+            calib.log(m.CameraCalibration(
+                timestamp=ts, frame_id=frame_id, width=w, height=h,
+                distortion_model='plumb_bob', D=[0.0] * 5, K=K.reshape(-1).tolist(),
+                R=np.eye(3).reshape(-1).tolist(), P=P.reshape(-1).tolist()),
+                log_time=int(stamp_ns))
 
     def _mesh_lists(self, m, verts, faces):
         """A mesh obstacle's points and indices as the primitive takes them, built once

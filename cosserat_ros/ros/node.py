@@ -1063,7 +1063,7 @@ class ClothNode(Node):
             self.publish_handles(stamp)
         if self.cameras:
             self.cameras.publish(self.sim, stamp, colors, not self.paused and self.diverged
-                                 is None, PAUSED_PUBLISH_PERIOD)
+                                 is None, PAUSED_PUBLISH_PERIOD, self.live)
         mono = time.monotonic()
         # ~1 Hz while there are obstacles, and once after every change: the last
         # obstacle's removal too (the array is then its DELETEALL alone, which clears it
