@@ -26,7 +26,8 @@ def node(tmp_path_factory):
     d = tmp_path_factory.mktemp('node')
     params = d / 'p.yaml'
     params.write_text(f'cloth_node:\n  ros__parameters:\n    mesh: {{nx: {NX}, ny: {NX}}}\n'
-                      f'    publish_rate: {RATE}\n    status_period: 0.0\n')
+                      f'    publish_rate: {RATE}\n    status_period: 0.0\n'
+                      '    cameras: {names: [top], top: {width: 24, height: 16, rate: 10.0}}\n')
     proc = subprocess.Popen([exe('cloth_node'), '--ros-args', '--params-file', str(params)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     yield proc
@@ -151,6 +152,36 @@ def test_every_message_decodes_with_mcap_ros2_support(bag):
     assert_logged_on_the_sim_clock(log_t, t)
     assert count == expected > 0
     assert set(kinds) == {'/cloth_node/mesh', '/cloth_node/energy', '/diagnostics', '/clock'}
+
+
+def test_a_camera_is_recorded_when_asked(node, tmp_path):
+    out = tmp_path / 'cam'
+    res = record(out, '--duration', '3', '--camera', 'top', '/clock')
+    assert res.returncode == 0, res.stderr
+    base = '/cloth_node/cameras/top'
+    stamps = {}
+    with AnyReader([out]) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics == {'/clock': 'rosgraph_msgs/msg/Clock',
+                          f'{base}/depth/image_raw': 'sensor_msgs/msg/Image',
+                          f'{base}/color/image_raw': 'sensor_msgs/msg/Image',
+                          f'{base}/camera_info': 'sensor_msgs/msg/CameraInfo',
+                          f'{base}/pose_out': 'geometry_msgs/msg/PoseStamped'}
+        for conn, t, raw in reader.messages():
+            if conn.topic == '/clock':
+                continue
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamps.setdefault(conn.topic, []).append(msg.header.stamp.sec * 10 ** 9
+                                                     + msg.header.stamp.nanosec)
+            if conn.topic.endswith('depth/image_raw'):
+                assert (msg.width, msg.height, msg.encoding, len(msg.data)) == \
+                    (24, 16, '32FC1', 24 * 16 * 4)
+    assert len(stamps[f'{base}/depth/image_raw']) >= 5
+    # the images, their info and the pose of one instant carry one stamp
+    common = set.intersection(*(set(v) for v in stamps.values()))
+    assert len(common) >= len(stamps[f'{base}/depth/image_raw']) - 2
+    res = record(tmp_path / 'bad', '--camera', 'a/b')
+    assert res.returncode == 2 and res.stderr.count('\n') == 1, res.stderr
 
 
 def test_metadata_follows_rosbag2_version_9(bag, node):

@@ -1,9 +1,12 @@
 """``record``: write the cloth's topics to a rosbag2 directory (MCAP storage, Jazzy default).
 
-    record -o DIR [--duration S] [--node cloth_node] [--wall-time] [TOPIC ...]
+    record -o DIR [--duration S] [--node cloth_node] [--wall-time] [--camera NAME ...]
+           [TOPIC ...]
 
 Default topics: the node's ``~/mesh``, ``~/energy`` and ``~/obstacle_markers`` (which
-``render`` draws), ``/diagnostics`` and ``/clock``.
+``render`` draws), ``/diagnostics`` and ``/clock``. ``--camera NAME`` (repeatable) adds a
+camera's images, ``camera_info`` and ``pose_out`` (:data:`CAMERA_TOPICS`) to them, or to
+the TOPICs given.
 Messages are subscribed with their real types and written as the serialised bytes that
 arrive (no deserialise / re-serialise round trip) by :mod:`.bagfile` (``metadata.yaml``
 plus ``DIR/DIR.mcap``, CRCs written), so ``ros2 bag info``, ``ros2 bag play``, Foxglove and
@@ -38,9 +41,11 @@ import sys
 import time
 from typing import Dict, List
 
-__all__ = ['main', 'recover', 'DEFAULT_TOPICS']
+__all__ = ['main', 'recover', 'DEFAULT_TOPICS', 'CAMERA_TOPICS']
 
 DEFAULT_TOPICS = ('~/mesh', '~/energy', '~/obstacle_markers', '/diagnostics', '/clock')
+#: a camera's topics under ``~/cameras/<name>/`` that ``--camera <name>`` records
+CAMERA_TOPICS = ('depth/image_raw', 'color/image_raw', 'camera_info', 'pose_out')
 
 
 def message_class(type_name: str):
@@ -215,6 +220,9 @@ def main(argv: List[str] = None) -> int:
     ap.add_argument('--node', default='cloth_node', help='node whose ~/ topics to record')
     ap.add_argument('--wait', type=float, default=30.0,
                     help='seconds to wait for the topics to appear')
+    ap.add_argument('--camera', action='append', default=[], metavar='NAME',
+                    help="also record camera NAME's images, camera_info and pose_out "
+                    '(repeatable)')
     ap.add_argument('--wall-time', action='store_true',
                     help='log receive (wall-clock) times instead of simulation time')
     ap.add_argument('--recover', metavar='DIR', help='write metadata.yaml for a bag cut off '
@@ -234,7 +242,12 @@ def main(argv: List[str] = None) -> int:
         return 2
     # past a file-size limit a write then fails (EFBIG) instead of killing the process
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    requested = [resolve(t, a.node) for t in (a.topics or DEFAULT_TOPICS)]
+    bad = [c for c in a.camera if not c or '/' in c]
+    if bad:
+        print(f'record: error: --camera takes a camera name, got {bad[0]!r}', file=sys.stderr)
+        return 2
+    cameras = [f'~/cameras/{c}/{t}' for c in a.camera for t in CAMERA_TOPICS]
+    requested = [resolve(t, a.node) for t in list(a.topics or DEFAULT_TOPICS) + cameras]
     # Ctrl-C and SIGTERM only ask the loop to stop: an exception raised wherever the
     # signal lands (inside a chunk's write or its fsync) would leave the bag's index
     # short of what its statistics count, and a second Ctrl-C would break the close
