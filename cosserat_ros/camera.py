@@ -168,10 +168,7 @@ class Camera:
         self._f = f
         self._c = (0.5 * (self.width - 1), 0.5 * (self.height - 1))
         self.set_pose(position, orientation)
-        h, w = self.height, self.width
-        self._hit = np.empty((h, w), np.int64)
-        self._bary = np.empty((h, w, 2))
-        self._depth = np.empty((h, w))
+        self._scratch = None              # (depth, hit, bary), allocated at the first render
 
     @classmethod
     def looking_at(cls, width: int, height: int, fov: float, position, target,
@@ -229,18 +226,21 @@ class Camera:
         n_cloth = sim.mesh.n_faces
         fx = fy = self._f
         cx, cy = self._c
-        raster.cast(verts, tris, ob, fx, fy, cx, cy, self.near, self.far,
-                    self._depth, self._hit, self._bary)
+        if self._scratch is None:
+            h, w = self.height, self.width
+            self._scratch = (np.empty((h, w)), np.empty((h, w), np.int64),
+                             np.empty((h, w, 2)))
+        dep, hit, bary = self._scratch
+        raster.cast(verts, tris, ob, fx, fy, cx, cy, self.near, self.far, dep, hit, bary)
         vn = np.zeros((len(verts), 3))
         raster.vertex_normals(verts, tris, n_cloth, vn)
         rgb = np.empty((self.height, self.width, 3), np.uint8)
         padded = np.zeros((len(verts), 3))
         padded[:n] = cols
         raster.shade(verts, tris, n_cloth, vn, padded, ob_gray, gray, fx, fy, cx, cy,
-                     ob, self._depth, self._hit, self._bary, np.asarray(BACKGROUND), AMBIENT,
-                     rgb)
-        depth = self._depth.astype(np.float32)
-        depth[self._hit == raster.NO_HIT] = np.nan
+                     ob, dep, hit, bary, np.asarray(BACKGROUND), AMBIENT, rgb)
+        depth = dep.astype(np.float32)
+        depth[hit == raster.NO_HIT] = np.nan
         return depth, rgb
 
     def points(self, depth) -> np.ndarray:

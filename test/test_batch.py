@@ -287,6 +287,40 @@ def test_a_refused_sample_is_a_failure_with_the_node_s_reason(tmp_path):
     assert res['error'].startswith('refused: dt = ') and 'critical step' in res['error']
 
 
+def test_an_episode_records_its_cameras_the_same_bytes_again(tmp_path):
+    """A camera of the scene (cameras.*, as the node's) is recorded at its rate of
+    simulation time on the node's topics; the bag is the same bytes again."""
+    cam = {'cameras.names': ['top'], 'cameras.top.width': 32, 'cameras.top.height': 24,
+           'cameras.top.rate': 10.0, 'cameras.top.points': True,
+           'cameras.top.position': [0.0, 0.0, 1.5]}
+    spec = small_spec(episodes=1, scene={'mesh.nx': 8, 'mesh.ny': 8, **cam})
+    ep = plan(load_spec(spec))[0]
+    res = run_episode(ep, tmp_path / 'a')
+    assert res['status'] == 'ok', res['error']
+    msgs = _messages(tmp_path / 'a' / 'episodes' / ep.id / 'bag')
+    base = '/cloth_node/cameras/top'
+    by = {}
+    for topic, t, m in msgs:
+        by.setdefault(topic, []).append((t, m))
+    depth = by[f'{base}/depth/image_raw']
+    assert len(depth) == 4                                  # t = 0, 0.1, 0.2, 0.3 s
+    dt = ep.params['dt']
+    assert [t for t, _ in depth] == [round(min(round(k / (10 * dt)), round(0.3 / dt)) * dt
+                                           * 1e9) for k in range(4)]
+    t, img = depth[-1]
+    assert (img.width, img.height, img.encoding, img.header.frame_id) == \
+        (32, 24, '32FC1', 'top_optical_frame')
+    z = np.frombuffer(bytes(img.data), dtype='<f4').reshape(24, 32)
+    assert np.isfinite(z).any()                             # the table or the cloth
+    for topic in ('color/image_raw', 'camera_info', 'points', 'pose_out'):
+        assert [s for s, _ in by[f'{base}/{topic}']] == [s for s, _ in depth], topic
+    again = run_episode(ep, tmp_path / 'b')
+    assert again['bag_sha256'] == res['bag_sha256']
+    bad = small_spec(episodes=1, scene={**spec['scene'], 'cameras.top.fov': 0.0})
+    with pytest.raises(SpecError, match='cameras.top: fov must be in'):
+        load_spec(bad)
+
+
 def test_pick_and_place_grasps_the_top_and_moves_it(tmp_path):
     spec = small_spec(episodes=1, duration=2.5, init='flat', base='',
                       scene={'mesh.nx': 8, 'mesh.ny': 8, 'pinned.sets': ['none'],

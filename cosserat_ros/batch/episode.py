@@ -256,7 +256,7 @@ class _Recorder:
     """The bag of one episode and the running metrics."""
 
     def __init__(self, path: Path, sim, params: dict, handle_names: List[str],
-                 points: bool):
+                 points: bool, cameras: Dict[str, dict]):
         from ..ros import messages
         from ..ros.conversions import OPTIONAL_MARKERS, mesh_marker_array, optional_markers
         from ..tools.bagfile import BagWriter, qos_yaml
@@ -287,6 +287,15 @@ class _Recorder:
             t = f'/{NODE}/handles/{name}/wrench'
             self.handle_topics[name] = t
             self.bag.add(t, 'geometry_msgs/msg/WrenchStamped')
+        self.cameras = cameras
+        for name, spec in cameras.items():
+            base = f'/{NODE}/cameras/{name}'
+            self.bag.add(f'{base}/depth/image_raw', 'sensor_msgs/msg/Image')
+            self.bag.add(f'{base}/color/image_raw', 'sensor_msgs/msg/Image')
+            self.bag.add(f'{base}/camera_info', 'sensor_msgs/msg/CameraInfo')
+            if spec['points']:
+                self.bag.add(f'{base}/points', 'sensor_msgs/msg/PointCloud2')
+            self.bag.add(f'{base}/pose_out', 'geometry_msgs/msg/PoseStamped')
         self.mesh_points: Dict[int, list] = {}
         e = sim.mesh.edges
         self.edges = e
@@ -363,6 +372,25 @@ class _Recorder:
         self._write(self.topics['points'], stamp,
                     point_cloud(self.sim.positions, self.sim.velocities, stamp, self.frame))
 
+    def camera(self, name: str, stamp: int) -> None:
+        """Camera ``name``'s topics, as the node publishes them (:mod:`..ros.cameras`)."""
+        from ..ros.cameras import optical_frame
+        from ..ros.conversions import camera_info, image, organised_cloud, vertex_colors
+        sim, spec = self.sim, self.cameras[name]
+        cam = spec['camera']
+        densities = sim.energy_and_densities()[1] if self.coloring == 'energy' else None
+        depth, rgb = cam.render(sim, vertex_colors(self.coloring, sim, densities))
+        base, frame = f'/{NODE}/cameras/{name}', optical_frame(name)
+        self._write(f'{base}/depth/image_raw', stamp, image(depth, stamp, frame))
+        self._write(f'{base}/color/image_raw', stamp, image(rgb, stamp, frame))
+        self._write(f'{base}/camera_info', stamp,
+                    camera_info(cam.intrinsics, cam.width, cam.height, stamp, frame))
+        if spec['points']:
+            self._write(f'{base}/points', stamp, organised_cloud(cam.points(depth), stamp,
+                                                                 frame))
+        self._write(f'{base}/pose_out', stamp,
+                    self.m.pose(stamp, self.frame, cam.position, cam.orientation))
+
 
 def _simulate(episode: Episode, bag_dir: Path) -> dict:
     """Build, place, act and record; the metrics. Raises EpisodeFailed (or the
@@ -406,11 +434,19 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
             script = resolve_script(policy['target'])
         except ValueError as exc:
             raise EpisodeFailed(str(exc)) from None
-    rec = _Recorder(bag_dir, sim, p, names, episode.record['points_hz'] > 0)
-    # a rate's k-th sample is at step round(k / (hz dt)): on time, not drifting
-    rates = [episode.record['mesh_hz']]
+    from ..ros.cameras import camera_specs
+    cameras = camera_specs(p)
+    rec = _Recorder(bag_dir, sim, p, names, episode.record['points_hz'] > 0, cameras)
+    # a rate's k-th sample is at step round(k / (hz dt)): on time, not drifting; what is
+    # recorded at each rate, in order: the state (with the obstacles), the points, the
+    # cameras (at cameras.<name>.rate)
+    actions = [(episode.record['mesh_hz'],
+                lambda stamp: (rec.obstacles(stamp), rec.state(stamp, handles)))]
     if episode.record['points_hz'] > 0:
-        rates.append(episode.record['points_hz'])
+        actions.append((episode.record['points_hz'], rec.points))
+    for cname, cspec in cameras.items():
+        actions.append((cspec['rate'], lambda stamp, n=cname: rec.camera(n, stamp)))
+    rates = [hz for hz, _ in actions]
 
     def due(hz: float, step: int) -> bool:
         k = round(step * hz * dt)
@@ -428,11 +464,9 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
 
     def record(step: int) -> None:
         stamp = int(round(step * dt * 1e9))
-        if due(rates[0], step):
-            rec.obstacles(stamp)
-            rec.state(stamp, handles)
-        if len(rates) > 1 and due(rates[1], step):
-            rec.points(stamp)
+        for hz, action in actions:
+            if due(hz, step):
+                action(stamp)
 
     try:
         if script is not None:

@@ -179,6 +179,8 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
                 if isinstance(v, float) and not math.isfinite(v):
                     raise ConfigError(f'{name} must be finite, got {value!r}')
         out[name] = value
+    from .cameras import camera_specs
+    camera_specs(out)                     # the cameras' sizes, fields of view and budget
     return out
 
 
