@@ -162,16 +162,19 @@ def _cap(o0, o1, o2, d0, d1, d2, z, r, near):
     return t
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def _obstacle(ob, k, d0, d1, d2, near):
     """Ray ``t d`` against analytic obstacle row ``k``: its first crossing t >= near
     (inf: none)."""
     kind = int(ob[k, OB_KIND])
     o0, o1, o2 = ob[k, OB_O], ob[k, OB_O + 1], ob[k, OB_O + 2]
-    R = ob[k, OB_R:OB_R + 9]                        # camera -> local, row-major
-    l0 = R[0] * d0 + R[1] * d1 + R[2] * d2
-    l1 = R[3] * d0 + R[4] * d1 + R[5] * d2
-    l2 = R[6] * d0 + R[7] * d1 + R[8] * d2
+    # R: camera -> local, row-major (scalars: a slice would be a counted array)
+    R0, R1, R2 = ob[k, OB_R], ob[k, OB_R + 1], ob[k, OB_R + 2]
+    R3, R4, R5 = ob[k, OB_R + 3], ob[k, OB_R + 4], ob[k, OB_R + 5]
+    R6, R7, R8 = ob[k, OB_R + 6], ob[k, OB_R + 7], ob[k, OB_R + 8]
+    l0 = R0 * d0 + R1 * d1 + R2 * d2
+    l1 = R3 * d0 + R4 * d1 + R5 * d2
+    l2 = R6 * d0 + R7 * d1 + R8 * d2
     p0, p1 = ob[k, OB_P], ob[k, OB_P + 1]
     if kind == KIND_PLANE:
         if l2 == 0.0:
@@ -190,22 +193,24 @@ def _obstacle(ob, k, d0, d1, d2, near):
                _sphere(o0, o1, o2 + p1, l0, l1, l2, p0, near))
 
 
-@kernel()
+@kernel(refcount=False, forceinline=True)
 def _obstacle_normal(ob, k, t, d0, d1, d2):
     """The outward normal (camera frame, not unit) of obstacle row ``k`` where the ray
     ``t d`` meets it: the plane's z; the sphere's ``q``; the box's face of the largest
     ``|q_k| / h_k``; the cylinder's cap (``|q_z| / l >= |q_xy| / r``) or side; the
     capsule's ``q - clamp(q_z, -l, l) e_z`` (``q`` the hit in the obstacle's frame)."""
     kind = int(ob[k, OB_KIND])
-    R = ob[k, OB_R:OB_R + 9]
-    q0 = ob[k, OB_O] + t * (R[0] * d0 + R[1] * d1 + R[2] * d2)
-    q1 = ob[k, OB_O + 1] + t * (R[3] * d0 + R[4] * d1 + R[5] * d2)
-    q2 = ob[k, OB_O + 2] + t * (R[6] * d0 + R[7] * d1 + R[8] * d2)
+    R0, R1, R2 = ob[k, OB_R], ob[k, OB_R + 1], ob[k, OB_R + 2]
+    R3, R4, R5 = ob[k, OB_R + 3], ob[k, OB_R + 4], ob[k, OB_R + 5]
+    R6, R7, R8 = ob[k, OB_R + 6], ob[k, OB_R + 7], ob[k, OB_R + 8]
+    if kind == KIND_PLANE:                          # local z in the camera frame
+        return R6, R7, R8
+    q0 = ob[k, OB_O] + t * (R0 * d0 + R1 * d1 + R2 * d2)
+    q1 = ob[k, OB_O + 1] + t * (R3 * d0 + R4 * d1 + R5 * d2)
+    q2 = ob[k, OB_O + 2] + t * (R6 * d0 + R7 * d1 + R8 * d2)
     p0, p1, p2 = ob[k, OB_P], ob[k, OB_P + 1], ob[k, OB_P + 2]
     n0, n1, n2 = q0, q1, q2
-    if kind == KIND_PLANE:
-        n0, n1, n2 = 0.0, 0.0, 1.0
-    elif kind == KIND_BOX:
+    if kind == KIND_BOX:
         a0, a1, a2 = abs(q0) / p0, abs(q1) / p1, abs(q2) / p2
         if a0 >= a1 and a0 >= a2:
             n0, n1, n2 = q0, 0.0, 0.0
@@ -221,8 +226,21 @@ def _obstacle_normal(ob, k, t, d0, d1, d2):
     elif kind == KIND_CAPSULE:
         n2 = q2 - min(p1, max(-p1, q2))
     # back to the camera frame: R^T n (R is camera -> local)
-    return (R[0] * n0 + R[3] * n1 + R[6] * n2, R[1] * n0 + R[4] * n1 + R[7] * n2,
-            R[2] * n0 + R[5] * n1 + R[8] * n2)
+    return (R0 * n0 + R3 * n1 + R6 * n2, R1 * n0 + R4 * n1 + R7 * n2,
+            R2 * n0 + R5 * n1 + R8 * n2)
+
+
+#: a prime above any row or band count (MAX_SIDE = 4096 rows): j -> j P mod n permutes
+SPREAD = 7919
+
+
+@kernel()
+def _spread(j, n):
+    """The j-th of n rows (or bands) in an order that deals neighbours out far apart,
+    ``j P mod n`` (P prime > n: a permutation). prange hands each thread one contiguous
+    run of j, and an image's work sits in neighbouring rows (the cloth, the table), so
+    that each thread then gets its share of them."""
+    return (j * SPREAD) % n
 
 
 @kernel()
@@ -291,7 +309,8 @@ def cast(verts, tris, obstacles, fx, fy, cx, cy, near, far, depth, hit, bary):
     _bounds(verts, tris, fx, fy, cx, cy, width, height, near, far, box)
     nbands = (height + BAND - 1) // BAND
     start, ids = _bin(box, nbands)
-    for b in nb.prange(nbands):
+    for j in nb.prange(nbands):
+        b = _spread(j, nbands)
         r0 = b * BAND
         r1 = min(height, r0 + BAND)
         for v in range(r0, r1):
@@ -302,13 +321,28 @@ def cast(verts, tris, obstacles, fx, fy, cx, cy, near, far, depth, hit, bary):
             for k in range(obstacles.shape[0]):
                 if not obstacles[k, OB_BOX + 2] <= v <= obstacles[k, OB_BOX + 3]:
                     continue
-                for u in range(int(obstacles[k, OB_BOX]), int(obstacles[k, OB_BOX + 1]) + 1):
+                u0, u1 = int(obstacles[k, OB_BOX]), int(obstacles[k, OB_BOX + 1])
+                if int(obstacles[k, OB_KIND]) == KIND_PLANE:
+                    # t = -o_z / (R_z . d), the row's constants out of the pixel loop
+                    o2 = obstacles[k, OB_O + 2]
+                    r6, r7, r8 = (obstacles[k, OB_R + 6], obstacles[k, OB_R + 7],
+                                  obstacles[k, OB_R + 8])
+                    row = r7 * d1 + r8
+                    for u in range(u0, u1 + 1):
+                        den = r6 * ((u - cx) / fx) + row
+                        if den != 0.0:
+                            t = -o2 / den
+                            if near <= t <= far and t < depth[v, u]:
+                                depth[v, u] = t
+                                hit[v, u] = -2 - k
+                    continue
+                for u in range(u0, u1 + 1):
                     t = _obstacle(obstacles, k, (u - cx) / fx, d1, 1.0, near)
                     if t < depth[v, u] and t <= far:
                         depth[v, u] = t
                         hit[v, u] = -2 - k
-        for j in range(start[b], start[b + 1]):
-            f = ids[j]
+        for m in range(start[b], start[b + 1]):
+            f = ids[m]
             ia, ib, ic = tris[f, 0], tris[f, 1], tris[f, 2]
             a0, a1, a2 = verts[ia, 0], verts[ia, 1], verts[ia, 2]
             b0, b1, b2 = verts[ib, 0], verts[ib, 1], verts[ib, 2]
@@ -333,11 +367,13 @@ def vertex_normals(verts, tris, n_cloth_tris, out):
     out[:] = 0.0
     for f in range(n_cloth_tris):
         ia, ib, ic = tris[f, 0], tris[f, 1], tris[f, 2]
-        e1 = verts[ib] - verts[ia]
-        e2 = verts[ic] - verts[ia]
-        c0 = e1[1] * e2[2] - e1[2] * e2[1]
-        c1 = e1[2] * e2[0] - e1[0] * e2[2]
-        c2 = e1[0] * e2[1] - e1[1] * e2[0]
+        e10, e11, e12 = (verts[ib, 0] - verts[ia, 0], verts[ib, 1] - verts[ia, 1],
+                         verts[ib, 2] - verts[ia, 2])
+        e20, e21, e22 = (verts[ic, 0] - verts[ia, 0], verts[ic, 1] - verts[ia, 1],
+                         verts[ic, 2] - verts[ia, 2])
+        c0 = e11 * e22 - e12 * e21
+        c1 = e12 * e20 - e10 * e22
+        c2 = e10 * e21 - e11 * e20
         for i in (ia, ib, ic):
             out[i, 0] += c0
             out[i, 1] += c1
@@ -345,7 +381,9 @@ def vertex_normals(verts, tris, n_cloth_tris, out):
     for i in range(out.shape[0]):
         s = math.sqrt(out[i, 0] ** 2 + out[i, 1] ** 2 + out[i, 2] ** 2)
         if s > 0.0:
-            out[i] /= s
+            out[i, 0] /= s
+            out[i, 1] /= s
+            out[i, 2] /= s
 
 
 @kernel(parallel=True)
@@ -357,13 +395,14 @@ def shade(verts, tris, n_cloth_tris, vnormals, colors, ob_gray, tri_gray, fx, fy
     both sides of every surface: ``c (ambient + (1 - ambient) |n . d| / |d|)``; nothing
     hit: ``background`` (3) in [0, 1]."""
     height, width = hit.shape
-    for v in nb.prange(height):
+    for j in nb.prange(height):
+        v = _spread(j, height)
         d1 = (v - cy) / fy
         for u in range(width):
             code = hit[v, u]
             if code == NO_HIT:
                 for c in range(3):
-                    rgb[v, u, c] = np.uint8(round(255.0 * background[c]))
+                    rgb[v, u, c] = np.uint8(255.0 * background[c] + 0.5)
                 continue
             d0 = (u - cx) / fx
             r, g, b = 0.0, 0.0, 0.0
@@ -397,7 +436,7 @@ def shade(verts, tris, n_cloth_tris, vnormals, colors, ob_gray, tri_gray, fx, fy
             nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
             dd = math.sqrt(d0 * d0 + d1 * d1 + 1.0)
             lam = abs(n0 * d0 + n1 * d1 + n2) / (nn * dd) if nn > 0.0 else 1.0
-            s = ambient + (1.0 - ambient) * lam
-            rgb[v, u, 0] = np.uint8(round(255.0 * min(1.0, max(0.0, r * s))))
-            rgb[v, u, 1] = np.uint8(round(255.0 * min(1.0, max(0.0, g * s))))
-            rgb[v, u, 2] = np.uint8(round(255.0 * min(1.0, max(0.0, b * s))))
+            s = 255.0 * (ambient + (1.0 - ambient) * lam)
+            rgb[v, u, 0] = np.uint8(min(255.0, max(0.0, r * s)) + 0.5)
+            rgb[v, u, 1] = np.uint8(min(255.0, max(0.0, g * s)) + 0.5)
+            rgb[v, u, 2] = np.uint8(min(255.0, max(0.0, b * s)) + 0.5)

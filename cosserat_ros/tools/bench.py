@@ -867,6 +867,9 @@ def main(argv=None):
     ap.add_argument('--batch-episodes', type=int, default=8,
                     help='episodes of the batch part (tools/bench_batch.py; 0: skip it; '
                     'needs the batch extra)')
+    ap.add_argument('--camera-seconds', type=float, default=6.0,
+                    help='how long each node case of the camera part is watched '
+                    '(tools/bench_camera.py; 0: the renders only; negative: skip the part)')
     ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the self-collision part\'s crumpled cloth (160 adds ~10 '
                     'minutes: its 1.5 s drop); the extra cost\'s growth is fitted over them')
@@ -890,6 +893,9 @@ def main(argv=None):
         part_self(a.self_sizes, a.crumpled_sizes)
     if a.node_seconds > 0:
         part_node(a.node_seconds)
+    if a.camera_seconds >= 0:
+        from .bench_camera import part_camera
+        part_camera(a.camera_seconds)
     if a.batch_episodes > 0:
         from .bench_batch import part_batch
         part_batch(a.batch_episodes)
