@@ -339,3 +339,20 @@ def test_near_and_far_clip_and_set_pose_moves_the_view():
     assert depth[15, 20] == pytest.approx(0.5, abs=1e-9)
     with pytest.raises(ValueError, match='unit quaternion'):
         cam.set_pose((0, 0, 0.5), (0, 0, 0, 0))
+
+
+def test_snapshot_writes_a_params_files_camera_or_refuses_in_one_line(tmp_path, capsys):
+    from pathlib import Path
+    from cosserat_ros.tools import snapshot
+    table = str(Path(__file__).resolve().parents[1] / 'config' / 'table.yaml')
+    out = tmp_path / 'side.png'
+    assert snapshot.main([table, '--camera', 'side', '--seconds', '0', '-o', str(out),
+                          '--npz', str(tmp_path / 'side.npz')]) == 0
+    assert out.stat().st_size > 10_000
+    data = np.load(tmp_path / 'side.npz')
+    assert data['depth'].shape == (480, 640) and data['rgb'].shape == (480, 640, 3)
+    assert np.isfinite(data['depth']).mean() > 0.3
+    capsys.readouterr()
+    assert snapshot.main([table, '--camera', 'top', '-o', str(tmp_path / 'x.png')]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and "no camera 'top'" in err
