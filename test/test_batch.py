@@ -158,7 +158,10 @@ def test_an_episode_writes_its_bag_params_and_result(done):
     topics = {t for t, _, _ in msgs}
     assert topics == {'/clock', '/cloth_node/mesh', '/cloth_node/energy',
                       '/cloth_node/points', '/cloth_node/obstacle_markers',
-                      '/cloth_node/contact/table', '/cloth_node/contact/ground'}
+                      '/cloth_node/contact/table', '/cloth_node/contact/ground',
+                      # the base's (table.yaml's) camera, at its rate
+                      *(f'/cloth_node/cameras/side/{t}' for t in (
+                          'depth/image_raw', 'color/image_raw', 'camera_info', 'pose_out'))}
     # log times are simulation time: the mesh at 20 Hz over 0.3 s, stamped as logged
     meshes = [(t, m) for topic, t, m in msgs if topic == '/cloth_node/mesh']
     assert len(meshes) == 7
@@ -316,6 +319,9 @@ def test_an_episode_records_its_cameras_the_same_bytes_again(tmp_path):
         assert [s for s, _ in by[f'{base}/{topic}']] == [s for s, _ in depth], topic
     again = run_episode(ep, tmp_path / 'b')
     assert again['bag_sha256'] == res['bag_sha256']
+    # the scene's cameras.names replaced the base's set: table.yaml's 'side' is gone
+    assert not any(k.startswith('cameras.side') for k in ep.params)
+    assert not any('/cameras/side/' in topic for topic in by)
     bad = small_spec(episodes=1, scene={**spec['scene'], 'cameras.top.fov': 0.0})
     with pytest.raises(SpecError, match='cameras.top: fov must be in'):
         load_spec(bad)

@@ -7,7 +7,8 @@ A spec is YAML (or the same dict)::
     episodes: 200
     duration: 4.0                  # simulated seconds per episode
     base: config/table.yaml        # optional: a node params file (its parameters)
-    scene: {mesh.nx: 24}           # node parameters over base
+    scene: {mesh.nx: 24}           # node parameters over base (a set's names, e.g.
+                                   # cameras.names, replace the base's set)
     randomize:                     # node parameters drawn per episode
       material.preset: {choice: [denim, jersey, polyester]}
       material.damping: {uniform: [0.05, 0.3]}
@@ -262,7 +263,7 @@ def load_spec(path_or_dict) -> dict:
             raise SpecError(f'randomize.{k}: must be {{uniform: [lo, hi]}}, '
                             f'{{loguniform: [lo, hi]}} or {{choice: [...]}}, got {v!r}')
         _check_dist(f'randomize.{k}', v)
-    spec['scene'] = {**base, **scene}
+    spec['scene'] = merge_scene(base, scene)
     spec['randomize'] = dict(randomize)
     kind, args = _kind_and_args('init', raw.get('init', 'flat'), INIT_KINDS)
     spec['init'] = {'kind': kind, **{k: args.get(k, d) for k, d in INIT_KINDS[kind].items()}}
@@ -344,6 +345,26 @@ def _check_values(spec: dict) -> None:
                     initial_material(p, given)
             except ConfigError as exc:
                 raise SpecError(f'randomize.{key}: {exc}') from None
+
+
+NAMED_SETS = ('obstacles', 'handles', 'cameras')
+
+
+def merge_scene(base: dict, scene: dict) -> dict:
+    """``scene`` over ``base``; where the scene lists a set's names (``obstacles.names``,
+    ``handles.names``, ``cameras.names``) it replaces the base's set, so the base's
+    parameters of a member it leaves out (``cameras.side.*``) are dropped with it."""
+    out = dict(base)
+    for group in NAMED_SETS:
+        if f'{group}.names' in scene:
+            keep = set(scene[f'{group}.names'] or ())
+            for k in list(out):
+                parts = k.split('.')
+                if (parts[0] == group and len(parts) > 2 and parts[1] != 'names'
+                        and parts[1] not in keep):
+                    del out[k]
+    out.update(scene)
+    return out
 
 
 def spec_digest(spec: dict) -> str:
