@@ -302,6 +302,33 @@ CUSICK_SPECIMEN_RADIUS = 0.15
 CUSICK_SUPPORT_RADIUS = 0.09
 
 
+@kernel()
+def _shadow_fill(p, faces, x0, y0, pixel, mask):
+    """Set mask[j, i] where the pixel centre (x0 + (i + 1/2) pixel, y0 + (j + 1/2) pixel)
+    lies in a triangle (barycentric l1, l2 >= 0, l1 + l2 <= 1; degenerate triangles
+    skipped), each triangle over the pixels of its bounding box."""
+    ny, nx = mask.shape
+    for t in range(faces.shape[0]):
+        ax, ay = p[faces[t, 0], 0], p[faces[t, 0], 1]
+        bx, by = p[faces[t, 1], 0], p[faces[t, 1], 1]
+        cx, cy = p[faces[t, 2], 0], p[faces[t, 2], 1]
+        det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+        if det == 0.0:
+            continue
+        i0 = max(int(math.floor((min(ax, bx, cx) - x0) / pixel)), 0)
+        j0 = max(int(math.floor((min(ay, by, cy) - y0) / pixel)), 0)
+        i1 = min(int(math.ceil((max(ax, bx, cx) - x0) / pixel)), nx)
+        j1 = min(int(math.ceil((max(ay, by, cy) - y0) / pixel)), ny)
+        for j in range(j0, j1):
+            Y = y0 + (j + 0.5) * pixel
+            for i in range(i0, i1):
+                X = x0 + (i + 0.5) * pixel
+                l1 = ((bx - X) * (cy - Y) - (cx - X) * (by - Y)) / det
+                l2 = ((cx - X) * (ay - Y) - (ax - X) * (cy - Y)) / det
+                if l1 >= 0.0 and l2 >= 0.0 and l1 + l2 <= 1.0:
+                    mask[j, i] = True
+
+
 def shadow(points2: np.ndarray, faces: np.ndarray, pixel: float = 1e-3):
     """The area [m^2] of the union of the triangles (points2 (n,2) [m], faces (m,3)) seen
     from above, on a raster of ``pixel`` [m] (a pixel counts when its centre is in a
@@ -310,20 +337,8 @@ def shadow(points2: np.ndarray, faces: np.ndarray, pixel: float = 1e-3):
     hi = points2.max(axis=0) + pixel
     nx, ny = (np.ceil((hi - lo) / pixel)).astype(int)
     mask = np.zeros((ny, nx), dtype=bool)
-    a, b, c = points2[faces[:, 0]], points2[faces[:, 1]], points2[faces[:, 2]]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    tlo = np.floor((np.minimum(np.minimum(a, b), c) - lo) / pixel).astype(int)
-    thi = np.ceil((np.maximum(np.maximum(a, b), c) - lo) / pixel).astype(int)
-    for t in np.flatnonzero(np.abs(det) > 0):
-        i0, j0 = tlo[t]
-        i1, j1 = thi[t]
-        px = lo[0] + (np.arange(i0, i1) + 0.5) * pixel
-        py = lo[1] + (np.arange(j0, j1) + 0.5) * pixel
-        X, Y = np.meshgrid(px, py)
-        l1 = ((b[t, 0] - X) * (c[t, 1] - Y) - (c[t, 0] - X) * (b[t, 1] - Y)) / det[t]
-        l2 = ((c[t, 0] - X) * (a[t, 1] - Y) - (a[t, 0] - X) * (c[t, 1] - Y)) / det[t]
-        inside = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
-        mask[j0:j1, i0:i1] |= inside
+    _shadow_fill(np.ascontiguousarray(points2, dtype=np.float64),
+                 np.ascontiguousarray(faces, dtype=np.int64), lo[0], lo[1], pixel, mask)
     return float(mask.sum()) * pixel ** 2, (mask, lo[0], lo[1], pixel)
 
 
