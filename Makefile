@@ -16,7 +16,8 @@ PARAMS ?= config/cloth.yaml
 
 install: $(PKG_STAMP)
 
-$(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt requirements-batch.txt
+$(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt requirements-batch.txt \
+		requirements-envs.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade 'pip<25'
 	$(PY) -m pip install --quiet -r requirements-dev.txt

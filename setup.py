@@ -20,9 +20,11 @@ setup(
     ],
     install_requires=['setuptools'],
     # the peer engine of the benchmark (requirements-bench.txt pins it), the live view
-    # (foxglove.port; requirements-viz.txt) and the batch engine (requirements-batch.txt)
+    # (foxglove.port; requirements-viz.txt), the batch engine (requirements-batch.txt) and
+    # the Gymnasium tasks (requirements-envs.txt)
     extras_require={'bench': ['mujoco'], 'viz': ['foxglove-sdk'],
-                    'batch': ['ray>=2.60', 'pyarrow', 'mcap']},
+                    'batch': ['ray>=2.60', 'pyarrow', 'mcap'],
+                    'envs': ['gymnasium>=1.2,<2']},
     zip_safe=False,
     maintainer='cosserat_ros developers',
     maintainer_email='cosserat-ros@example.com',

@@ -8,7 +8,9 @@ Sub-packages (reading order for a newcomer in ``README.md``, *Layout*):
 * ``fast``: the compiled step of the elastic terms (SIMD lanes, work sharing, tiles),
   tested against the terms of ``core/terms``;
 * ``ros``: the ``cloth_node`` executable (parameters, commands, pacing, messages);
-* ``tools``: ``record``, ``render``, ``make bench`` and ``make validate``.
+* ``tools``: ``record``, ``render``, ``make bench`` and ``make validate``;
+* ``batch``: randomized episodes on Ray; ``envs``: the Gymnasium tasks (``camera``: the
+  virtual RGB-D camera both use).
 
 ``cosserat_ros.mesh`` and ``cosserat_ros.simulator`` are the documented entry points of the
 library; they re-export the core. Importing the package imports nothing else, so that the

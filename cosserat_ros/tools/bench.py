@@ -870,6 +870,9 @@ def main(argv=None):
     ap.add_argument('--camera-seconds', type=float, default=6.0,
                     help='how long each node case of the camera part is watched '
                     '(tools/bench_camera.py; 0: the renders only; negative: skip the part)')
+    ap.add_argument('--envs-steps', type=int, default=20,
+                    help='handle_delta steps per case of the envs part '
+                    '(tools/bench_envs.py; 0: skip it; needs the envs extra)')
     ap.add_argument('--crumpled-sizes', type=int, nargs='*', default=[40, 80],
                     help='N for the self-collision part\'s crumpled cloth (160 adds ~10 '
                     'minutes: its 1.5 s drop); the extra cost\'s growth is fitted over them')
@@ -896,6 +899,9 @@ def main(argv=None):
     if a.camera_seconds >= 0:
         from .bench_camera import part_camera
         part_camera(a.camera_seconds)
+    if a.envs_steps > 0:
+        from .bench_envs import part_envs
+        part_envs(a.envs_steps)
     if a.batch_episodes > 0:
         from .bench_batch import part_batch
         part_batch(a.batch_episodes)
