@@ -83,14 +83,14 @@ def test_rviz_config_shows_what_the_node_publishes(tmp_path):
 
 
 #: the rosdep keys of the Python libraries the package imports (llvmlite comes with numba;
-#: mujoco, foxglove, mcap, ray and pyarrow are the optional extras' (setup.py: bench, viz,
-#: batch), not run dependencies)
+#: mujoco, foxglove, mcap, ray, pyarrow and gymnasium are the optional extras' (setup.py:
+#: bench, viz, batch, envs), not run dependencies)
 PYTHON_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'scipy': 'python3-scipy',
                'trimesh': 'python3-trimesh-pip', 'rosbags': 'python3-rosbags-pip',
                'matplotlib': 'python3-matplotlib', 'mpl_toolkits': 'python3-matplotlib',
                'yaml': 'python3-yaml'}
 EXTRAS = {'llvmlite', 'mujoco', 'foxglove', 'mcap', 'mcap_ros2', 'google', 'websockets',
-          'ray', 'pyarrow'}
+          'ray', 'pyarrow', 'gymnasium'}
 
 
 def test_every_package_the_code_imports_or_launches_is_a_run_dependency():
