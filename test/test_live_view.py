@@ -186,8 +186,10 @@ def test_the_cameras_images_and_calibration_are_shown(node):
     port, proc = node
     c = Client(port)
     base = '/cloth_node/cameras/top'
-    assert c.pump(30, lambda: f'{base}/color' in c.channels), (c.channels, proc.poll())
-    chans = {k: c.channels[f'{base}/{k}'] for k in ('color', 'depth', 'calibration')}
+    kinds = ('color', 'depth', 'calibration')        # advertised one after the other
+    assert c.pump(30, lambda: all(f'{base}/{k}' in c.channels for k in kinds)), \
+        (c.channels, proc.poll())
+    chans = {k: c.channels[f'{base}/{k}'] for k in kinds}
     assert chans['color']['schemaName'] == 'foxglove.RawImage'
     assert chans['calibration']['schemaName'] == 'foxglove.CameraCalibration'
     c.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [

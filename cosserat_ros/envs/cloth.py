@@ -60,7 +60,9 @@ Reproducibility
 ---------------
 ``reset(seed=s)`` draws everything random from ``self.np_random`` (Gymnasium's
 generator seeded by s): the same seed and actions give the same observations, rewards
-and infos to the bit (with the same numba thread count: the step's sums are ordered).
+and infos to the bit (whatever the numba thread count: the step's sums are ordered),
+in one process and with one numba cache: a cache whose kernels were first compiled
+for other argument types may compute other bits (docs/performance.md, "Environments").
 A divergence of the simulator ends the episode as truncated with
 ``info['sim_failure']`` (the reason); ``step`` raises nothing for it.
 """
