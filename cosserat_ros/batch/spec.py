@@ -254,17 +254,8 @@ def load_spec(path_or_dict) -> dict:
     for k, v in scene.items():
         if _is_dist(v):
             raise SpecError(f'scene.{k}: a distribution belongs under randomize')
-    randomize = raw.get('randomize') or {}
-    if not isinstance(randomize, dict):
-        raise SpecError(f'randomize must be a mapping of node parameters, got '
-                        f'{randomize!r}')
-    for k, v in randomize.items():
-        if not _is_dist(v):
-            raise SpecError(f'randomize.{k}: must be {{uniform: [lo, hi]}}, '
-                            f'{{loguniform: [lo, hi]}} or {{choice: [...]}}, got {v!r}')
-        _check_dist(f'randomize.{k}', v)
     spec['scene'] = merge_scene(base, scene)
-    spec['randomize'] = dict(randomize)
+    spec['randomize'] = check_randomize(raw.get('randomize') or {})
     kind, args = _kind_and_args('init', raw.get('init', 'flat'), INIT_KINDS)
     spec['init'] = {'kind': kind, **{k: args.get(k, d) for k, d in INIT_KINDS[kind].items()}}
     spec['policy'] = _load_policy(raw.get('policy', 'none'))
@@ -347,6 +338,26 @@ def _check_values(spec: dict) -> None:
                 raise SpecError(f'randomize.{key}: {exc}') from None
 
 
+def check_randomize(randomize) -> dict:
+    """``randomize`` ({node parameter: distribution}) with every distribution's form
+    checked (its values against the node: :func:`_check_values`); SpecError if bad."""
+    if not isinstance(randomize, dict):
+        raise SpecError(f'randomize must be a mapping of node parameters, got '
+                        f'{randomize!r}')
+    for k, v in randomize.items():
+        if not _is_dist(v):
+            raise SpecError(f'randomize.{k}: must be {{uniform: [lo, hi]}}, '
+                            f'{{loguniform: [lo, hi]}} or {{choice: [...]}}, got {v!r}')
+        _check_dist(f'randomize.{k}', v)
+    return dict(randomize)
+
+
+def draw_randomized(randomize: dict, rng: np.random.Generator) -> dict:
+    """One draw of every randomized parameter, in the order of their names (so a draw
+    does not depend on the spec's key order)."""
+    return {key: _draw(randomize[key], rng) for key in sorted(randomize)}
+
+
 NAMED_SETS = ('obstacles', 'handles', 'cameras')
 
 
@@ -389,9 +400,7 @@ def plan(spec) -> List[Episode]:
     for i in range(spec['episodes']):
         rng = episode_rng(spec['seed'], i)
         seed = int(rng.integers(0, 2 ** 63 - 1))
-        params = dict(spec['scene'])
-        for key in sorted(spec['randomize']):
-            params[key] = _draw(spec['randomize'][key], rng)
+        params = {**spec['scene'], **draw_randomized(spec['randomize'], rng)}
         init = {k: _draw(v, rng) for k, v in spec['init'].items()}
         if init['kind'] == 'drop' and init.get('azimuth_deg') is None:
             init['azimuth_deg'] = float(360.0 * rng.random())

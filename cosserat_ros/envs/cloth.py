@@ -8,8 +8,9 @@ A square sheet of ``cloth_size`` [m] and ``resolution`` x ``resolution`` segment
 (i, j) at index ``j (resolution + 1) + i``, i along x: the grid's row-major order, as the
 node's ``~/points``), centred at the origin on a ground plane at z = 0 (friction 1.0,
 contact thickness 2 mm), gravity -9.81 m/s^2, self-collision on (``self_collision``),
-the explicit solver at 0.9 of its critical step. ``material``: a preset name (``'denim'``, ...), a dict of
-:class:`~cosserat_ros.Material` arguments, a Material, or None for
+the explicit solver at 0.9 of its critical step. ``material``: a preset name
+(``'denim'``, ...), a dict of :class:`~cosserat_ros.Material` arguments, a Material, or
+None for
 :data:`DEFAULT_MATERIAL`; checked as the node checks its ``material.*`` parameters.
 ``randomize``: node ``material.*`` parameters drawn at every reset from the episode's
 generator, in the batch spec's vocabulary and by its code (``{'material.damping':
@@ -31,7 +32,8 @@ longer than it is would tear, which this model does not do.
   (the workspace is twice the cloth's size). Each picker grasps the top-most vertex
   within its radius under its pick point (the nearest one if none is), lifts it by
   :data:`LIFT`, carries it along an arc (:func:`carry_arc`) to :data:`LIFT` above its
-  place point or above the cloth there, lowers it by half the lift and releases it, every leg at :data:`SPEED`; then the cloth settles (its fastest vertex
+  place point or above the cloth there, lowers it by half the lift and releases it,
+  every leg at :data:`SPEED`; then the cloth settles (its fastest vertex
   below :data:`SETTLED_SPEED`, checked every :data:`SETTLE_CHECK` s) or
   :data:`SETTLE_LIMIT` s pass. In ClothDrop the pickers hold the two corners already,
   and the pick values are a via point: the corners are carried at their height over
@@ -41,8 +43,7 @@ longer than it is would tear, which this model does not do.
 * ``action_mode='handle_delta'``: per picker ``[dx, dy, dz, grip]`` in [-1, 1], one step
   :data:`CONTROL_PERIOD` s (10 Hz): the picker moves by (dx, dy, dz) times
   ``max_delta`` [m] (default :data:`MAX_DELTA`), not below the ground; ``grip > 0`` holds
-  (grasping the vertices within the radius of the picker when it held nothing),
-  ``grip <= 0`` releases.
+  (pinching the layer at the picker when it held nothing), ``grip <= 0`` releases.
 
 Observations
 ------------
@@ -50,8 +51,8 @@ Observations
 position and grip 0/1), ``wrenches`` (k, 6: force [N] and torque [N m] about the picker
 on the cloth), all float32. ``'keypoints'``: ``keypoints`` (8, 3), the four corners and
 the four edge midpoints, and ``pickers``. ``'depth'``: ``depth`` (h, w, 1) float32 [m]
-of a top-down camera (:class:`~cosserat_ros.camera.Camera`) 1 m above the start centre
-seeing the workspace, the camera's far distance where nothing is seen; ``'rgbd'``:
+of a top-down camera (:class:`~cosserat_ros.camera.Camera`) :data:`CAMERA_HEIGHT` above
+the origin seeing the workspace about it (+-1.05 cloth_size), the camera's far distance where nothing is seen; ``'rgbd'``:
 ``rgb`` (h, w, 3) uint8 and ``depth``. ``camera_size`` (default 64) is h = w. Every call
 returns fresh arrays. ClothDrop adds ``target`` (2,): the target square's offset [m] from
 the origin (the start does not show it).
@@ -103,7 +104,7 @@ OBS_MODES = ('state', 'keypoints', 'depth', 'rgbd')
 GROUND_FRICTION, THICKNESS = 1.0, 0.002
 #: ClothDrop's pick-and-place: the height [m] the held corners are carried down to
 DROP_HEIGHT = 0.01
-#: the top-down camera: height above the start centre [m], far distance [m]
+#: the top-down camera: height above the origin [m], far distance [m]
 CAMERA_HEIGHT, CAMERA_FAR = 1.0, 2.0
 
 
@@ -138,22 +139,15 @@ def check_randomize(randomize, given: dict) -> dict:
     (``{uniform: [lo, hi]}``, ``{loguniform: [lo, hi]}``, ``{choice: [...]}``; checked
     by the batch's own code, each bound against the node's declarations); only
     ``material.*`` parameters. ValueError (a SpecError) with the key and why."""
-    from ..batch.spec import SpecError, _check_dist, _check_values, _is_dist
-    if randomize is None:
-        return {}
-    if not isinstance(randomize, dict):
-        raise ValueError(f'randomize must be a mapping of material.* parameters to '
-                         f'distributions, got {randomize!r}')
-    for k, v in randomize.items():
+    from ..batch.spec import SpecError, _check_values
+    from ..batch.spec import check_randomize as check_form
+    randomize = check_form({} if randomize is None else randomize)
+    for k in randomize:
         if not (isinstance(k, str) and k.startswith('material.')):
             raise SpecError(f'randomize.{k}: an environment draws material.* parameters '
                             f'only')
-        if not _is_dist(v):
-            raise SpecError(f'randomize.{k}: must be {{uniform: [lo, hi]}}, '
-                            f'{{loguniform: [lo, hi]}} or {{choice: [...]}}, got {v!r}')
-        _check_dist(f'randomize.{k}', v)
     _check_values({'scene': given, 'randomize': randomize})
-    return dict(randomize)
+    return randomize
 
 
 class ClothEnv(gym.Env):
@@ -208,12 +202,6 @@ class ClothEnv(gym.Env):
         self.keypoint_ids = np.array([0, r // 2, r, (r // 2) * (r + 1), (r // 2) * (r + 1) + r,
                                       r * (r + 1), r * (r + 1) + r // 2, n - 1])
         self.rest = mesh.vertices.copy()
-        edges = np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]],
-                                mesh.faces[:, [2, 0]]])
-        self.neighbours = [[] for _ in range(n)]
-        for a, b in edges:
-            self.neighbours[a].append(int(b))
-            self.neighbours[b].append(int(a))
         self.camera = Camera(camera_size, camera_size, 2 * math.degrees(math.atan(
             1.05 * self.cloth_size / CAMERA_HEIGHT)), (0.0, 0.0, CAMERA_HEIGHT),
             (1.0, 0.0, 0.0, 0.0), far=CAMERA_FAR)
@@ -261,21 +249,17 @@ class ClothEnv(gym.Env):
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)
         sim = self.sim
-        for hid in list(sim.handles):
-            sim.release(hid)
+        self._release_all()
         sim.reset()
         if self.randomize:
-            from ..batch.spec import _draw
+            from ..batch.spec import draw_randomized
             given = dict(self.material_given)
             if 'material.preset' in self.randomize:     # a drawn fabric's own constants
                 for k in ('zeta', 'xi', 'phi', 'density'):
                     given.pop(f'material.{k}', None)
-            for key in sorted(self.randomize):
-                given[key] = _draw(self.randomize[key], self.np_random)
+            given.update(draw_randomized(self.randomize, self.np_random))
             sim.material = build_material(given)
             sim.dt = 0.9 * sim.critical_dt()
-        self._hid = [None] * self.num_pickers
-        self.grip[:] = False
         self.pickers[:] = 0.0
         self.pickers[:, 2] = LIFT
         self.t = 0
@@ -306,10 +290,7 @@ class ClothEnv(gym.Env):
         except SimulationDiverged as exc:
             self.failure = str(exc)
             truncated = True
-            for hid in list(self.sim.handles):
-                self.sim.release(hid)
-            self._hid = [None] * self.num_pickers
-            self.grip[:] = False
+            self._release_all()
         self.t += 1
         reward = float(self._reward(before))
         terminated = bool(self._success()) and self.failure is None
@@ -417,12 +398,9 @@ class ClothEnv(gym.Env):
         edges within the radius (a pinch holds one layer: the layers folded under it
         are joined to it only outside the ball, and a free layer squeezed between two
         held ones could not be kept apart). Nothing within the radius: no grasp."""
-        x = self.sim.positions
+        x, mesh = self.sim.positions, self.sim.mesh
         d = np.linalg.norm(x - np.asarray(point, dtype=float), axis=1)
-        inside = d <= self.picker_radius
-        for hid in self._hid:
-            if hid is not None and hid in self.sim.handles:
-                inside[self.sim.handles[hid]['vertices']] = False
+        inside = (d <= self.picker_radius) & ~self._held_mask()
         if not inside.any():
             self._hid[i] = None
             self.grip[i] = False
@@ -431,7 +409,8 @@ class ClothEnv(gym.Env):
         held, todo = {seed}, [seed]
         while todo:
             v = todo.pop()
-            for w in self.neighbours[v]:
+            for w in mesh.ring1[mesh.ring1_ptr[v]:mesh.ring1_ptr[v + 1]]:
+                w = int(w)
                 if inside[w] and w not in held:
                     held.add(w)
                     todo.append(w)
@@ -440,22 +419,31 @@ class ClothEnv(gym.Env):
         self._seed[i] = seed
         self.grip[i] = True
 
-    def _release_all(self) -> None:
-        for i, hid in enumerate(self._hid):
+    def _held_mask(self) -> np.ndarray:
+        """(n,) bool: the vertices the pickers hold."""
+        held = np.zeros(self.sim.mesh.n_vertices, bool)
+        for hid in self._hid:
             if hid is not None and hid in self.sim.handles:
-                self.sim.release(hid)
-            self._hid[i] = None
-        self.grip[:] = False
+                held[self.sim.handles[hid]['vertices']] = True
+        return held
+
+    def _release(self, i: int) -> None:
+        """Picker ``i`` lets go (if it holds anything)."""
+        hid = self._hid[i]
+        if hid is not None and hid in self.sim.handles:
+            self.sim.release(hid)
+        self._hid[i] = None
+        self.grip[i] = False
+
+    def _release_all(self) -> None:
+        for i in range(self.num_pickers):
+            self._release(i)
 
     def _top_under(self, xy) -> float:
         """The highest free vertex [m] within twice the picker's radius of ``xy`` seen
         from above (the ground if none)."""
         x = self.sim.positions
-        free = np.ones(len(x), bool)
-        for hid in self._hid:
-            if hid is not None and hid in self.sim.handles:
-                free[self.sim.handles[hid]['vertices']] = False
-        near = free & (np.linalg.norm(x[:, :2] - np.asarray(xy), axis=1)
+        near = ~self._held_mask() & (np.linalg.norm(x[:, :2] - np.asarray(xy), axis=1)
                        <= 2 * self.picker_radius)
         return float(x[near, 2].max()) if near.any() else 0.0
 
@@ -498,11 +486,8 @@ class ClothEnv(gym.Env):
         for i in range(self.num_pickers):
             if a[i, 3] > 0 and self._hid[i] is None:
                 self._grasp(i, self.pickers[i])
-            elif a[i, 3] <= 0 and self._hid[i] is not None:
-                if self._hid[i] in self.sim.handles:
-                    self.sim.release(self._hid[i])
-                self._hid[i] = None
-                self.grip[i] = False
+            elif a[i, 3] <= 0:
+                self._release(i)
         targets = self._reach(targets)
         for i, hid in enumerate(self._hid):
             if hid is not None:
@@ -537,10 +522,6 @@ def carry_arc(lifted: np.ndarray, place: np.ndarray, lift: float,
             out[s, i] = start + 0.5 * (1 - math.cos(th)) * (end - start) + \
                 (0.0, 0.0, rise * half * math.sin(th))
     return out
-
-
-def flat_area(env: ClothEnv) -> float:
-    return env.cloth_size ** 2
 
 
 def env_coverage(env: ClothEnv) -> float:

@@ -103,7 +103,6 @@ def evaluate(task: str, agent, seeds, actions: int, **options):
     """Per seed: (metric after the episode, success, steps) of ``agent`` on ``task``,
     at most ``actions`` actions (stopping at success or truncation)."""
     import gymnasium as gym
-    from . import ENV_IDS  # noqa: F401  (registers the ids)
     env_id, key = METRICS[task]
     env = gym.make(env_id, **options)
     out = []
