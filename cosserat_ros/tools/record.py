@@ -1,7 +1,7 @@
 """``record``: write the cloth's topics to a rosbag2 directory (MCAP storage, Jazzy default).
 
-    record -o DIR [--duration S] [--node cloth_node] [--wall-time] [--camera NAME ...]
-           [TOPIC ...]
+    record -o DIR [--duration S] [--timeout S] [--wait S] [--node cloth_node] [--wall-time]
+           [--camera NAME ...] [TOPIC ...]
 
 Default topics: the node's ``~/mesh``, ``~/energy`` and ``~/obstacle_markers`` (which
 ``render`` draws), ``/diagnostics`` and ``/clock``. ``--camera NAME`` (repeatable) adds a
@@ -20,10 +20,22 @@ from where they were, so that the bag still plays in the order it was recorded; 
 messages' own stamps keep the node's time. ``--wall-time`` logs receive times instead;
 without a ``/clock`` publisher the recorder says so and logs wall time.
 
-Topics: every requested topic is waited for up to ``--wait`` seconds; one still missing
-then is a warning naming it, and it is recorded from when it appears (the graph is looked
-at twice a second), so a topic that shows up late (``/clock`` does, now and then, by a few
-hundred ms of discovery) is not lost.
+Durations: ``--duration S`` counts *simulation* seconds, whatever the node's speed (a busy
+host, a paused node): the bag holds the messages whose simulation times lie within S of
+the first message's, and the recorder stops at the first message past that (not written).
+A message's simulation time is its own stamp (a header's, ``/clock``'s; :func:`stamp_reader`)
+or, for a type without one, the ``/clock`` time it arrives at; each topic's time counts
+forward from its first message and a reset (its time going back) does not undo what was
+counted (:class:`SimSpan`). The wall-clock options are separate: ``--timeout S`` stops the
+recording after S wall-clock seconds however far the simulation got (default: no limit),
+and ``--wait S`` is how long the recorder waits for the node (wall clock, below).
+
+Topics: every requested topic's publisher is waited for up to ``--wait`` seconds (wall
+clock); one still missing then is a warning naming it, and it is recorded from when it
+appears (the graph is looked at twice a second), so a topic that shows up late (``/clock``
+does, now and then, by a few hundred ms of discovery) is not lost. Nothing recorded is an
+error (one line on stderr, exit 1, no bag left behind): no publisher of any topic within
+``--wait`` seconds, or publishers but no message within ``--wait`` seconds more.
 
 Safety: an existing DIR is never overwritten or appended to; SIGINT, SIGTERM and the end of
 ``--duration`` flush and close the bag; every completed 1 MiB chunk is synced to disk at
@@ -37,11 +49,13 @@ from __future__ import annotations
 import argparse
 import importlib
 from pathlib import Path
+import re
 import sys
 import time
-from typing import Dict, List
+from typing import Callable, Dict, List, Optional
 
-__all__ = ['main', 'recover', 'DEFAULT_TOPICS', 'CAMERA_TOPICS']
+__all__ = ['main', 'recover', 'stamp_reader', 'SimSpan', 'DEFAULT_TOPICS',
+           'CAMERA_TOPICS']
 
 DEFAULT_TOPICS = ('~/mesh', '~/energy', '~/obstacle_markers', '/diagnostics', '/clock')
 #: a camera's topics under ``~/cameras/<name>/`` that ``--camera <name>`` records
@@ -58,6 +72,96 @@ def resolve(topic: str, node_name: str) -> str:
     if topic.startswith('~/'):
         return f'/{node_name}/{topic[2:]}'
     return topic if topic.startswith('/') else '/' + topic
+
+
+def stamp_reader(type_name: str) -> Optional[Callable[[bytes], Optional[int]]]:
+    """A function that reads the stamp [ns] of a serialised (CDR) message of ``type_name``
+    ('pkg/msg/Name') without deserialising it, or None if the type has no stamp there.
+
+    The stamp is the ``builtin_interfaces/Time`` reached by following first fields: a
+    ``std_msgs/Header``'s stamp, ``rosgraph_msgs/Clock``'s clock, a ``MarkerArray``'s first
+    marker's header (through a sequence's first element; an empty sequence: None). Every
+    step of that path is 4-byte aligned (the 4-byte encapsulation header, uint32 sequence
+    lengths, int32 seconds), so the offsets need no padding. The function returns None for
+    a message too short to hold the stamp."""
+    import struct
+    seqs = 0                         # sequence lengths on the way (each 4 bytes, not 0)
+    t = type_name
+    for _ in range(16):              # nesting deeper than this is no stamp path
+        if t in ('builtin_interfaces/Time', 'builtin_interfaces/msg/Time'):
+            break
+        m = re.fullmatch(r'sequence<([^,>]+)(?:,\s*\d+)?>', t)
+        if m:
+            seqs += 1
+            t = m.group(1)
+            continue
+        m = re.fullmatch(r'(.+)\[\d+\]', t)       # a fixed array: its first element, in place
+        if m:
+            t = m.group(1)
+            continue
+        parts = t.split('/')
+        if len(parts) == 2:
+            parts = [parts[0], 'msg', parts[1]]
+        if len(parts) != 3:
+            return None                                    # a primitive, a string
+        try:
+            fields = message_class('/'.join(parts)).get_fields_and_field_types()
+        except (ImportError, AttributeError):
+            return None
+        if not fields:
+            return None
+        t = next(iter(fields.values()))
+    else:
+        return None
+    need = 4 + 4 * seqs + 8
+
+    def read(raw: bytes) -> Optional[int]:
+        if len(raw) < need:
+            return None
+        endian = '<' if raw[1] & 1 else '>'          # CDR_LE (0x0001) or CDR_BE (0x0000)
+        for k in range(seqs):
+            if struct.unpack_from(endian + 'I', raw, 4 + 4 * k)[0] == 0:
+                return None
+        sec, nsec = struct.unpack_from(endian + 'iI', raw, 4 + 4 * seqs)
+        return sec * 10 ** 9 + nsec
+    return read
+
+
+class SimSpan:
+    """How much simulation time [ns] a stream of messages covers, per source (a topic):
+    the sum of its forward steps from its first message, so that a reset (the source's time
+    going back, as ``~/reset`` sends the node to t = 0) starts a new stretch instead of
+    undoing what was counted. :meth:`elapsed` without a source is the longest of them
+    (``/clock``, first latched and then every tick, is normally that one)."""
+
+    def __init__(self):
+        self._last: Dict[str, int] = {}
+        self._run: Dict[str, int] = {}
+
+    def after(self, source: str, t: int) -> int:
+        """``elapsed(source)`` [ns] if a message of ``source`` at simulation time ``t``
+        [ns] were added."""
+        last = self._last.get(source)
+        return self._run.get(source, 0) + (t - last if last is not None and t > last else 0)
+
+    def peek(self, source: str, t: int) -> int:
+        """:meth:`elapsed` [ns] (the longest source) if a message of ``source`` at
+        simulation time ``t`` [ns] were added."""
+        return max(self.elapsed(), self.after(source, t))
+
+    def add(self, source: str, t: int) -> None:
+        """Count a message of ``source`` at simulation time ``t`` [ns]."""
+        self._run[source] = self.after(source, t)
+        self._last[source] = t
+
+    def elapsed(self, source: Optional[str] = None) -> int:
+        """Simulation time [ns] covered by ``source``, or by the longest source."""
+        if source is not None:
+            return self._run.get(source, 0)
+        return max(self._run.values(), default=0)
+
+    def __bool__(self) -> bool:
+        return bool(self._run)
 
 
 def scan_mcap(path: Path):
@@ -204,7 +308,25 @@ def _qos_of(node, topic: str):
             qos_yaml(reliable, latched, depth))
 
 
+def _remove_empty_bag(out: Path) -> None:
+    """Remove the bag directory this run created and wrote no message to (its two files;
+    ``rmdir`` leaves a directory that holds anything else)."""
+    for f in (out / 'metadata.yaml', out / f'{out.name}.mcap'):
+        try:
+            f.unlink()
+        except FileNotFoundError:
+            pass
+    try:
+        out.rmdir()
+    except OSError:
+        pass
+
+
 def main(argv: List[str] = None) -> int:
+    """The ``record`` command (module docstring). Exit codes: 0 recorded; 1 nothing
+    recorded (no publisher, or no message, within ``--wait``), or a write failed; 2 a usage
+    error or a place it cannot write; 130 interrupted (Ctrl-C, SIGTERM) before the first
+    message."""
     argv = sys.argv[1:] if argv is None else argv
     import signal
     import rclpy
@@ -212,19 +334,31 @@ def main(argv: List[str] = None) -> int:
     from rclpy.parameter import Parameter
     from .bagfile import BagWriter, BagWriteError
     args_ros = rclpy.utilities.remove_ros_args(['record'] + list(argv))[1:]
-    ap = argparse.ArgumentParser(prog='record', description='Record the cloth to a rosbag2 '
-                                 'directory (MCAP).')
+    ap = argparse.ArgumentParser(
+        prog='record', description='Record the cloth to a rosbag2 directory (MCAP). '
+        'Durations are simulation time (the messages\' stamps and /clock); the wall-clock '
+        'limits are --timeout and --wait.')
     ap.add_argument('topics', nargs='*', help=f'topics (default: {" ".join(DEFAULT_TOPICS)})')
     ap.add_argument('-o', '--output', help='bag directory to create (must not exist)')
-    ap.add_argument('--duration', type=float, default=0.0, help='stop after S seconds')
+    ap.add_argument('--duration', type=float, default=0.0, metavar='S',
+                    help='stop once the recording spans S seconds of SIMULATION time (the '
+                    "messages' stamps, or /clock, from the first message; a ~/reset does "
+                    'not restart the count), however long that takes on the wall clock; '
+                    '0 (default): until Ctrl-C or SIGTERM')
+    ap.add_argument('--timeout', type=float, default=0.0, metavar='S',
+                    help='WALL-CLOCK limit: stop S seconds after the recording starts, '
+                    'however far the simulation got; 0 (default): none')
     ap.add_argument('--node', default='cloth_node', help='node whose ~/ topics to record')
-    ap.add_argument('--wait', type=float, default=30.0,
-                    help='seconds to wait for the topics to appear')
+    ap.add_argument('--wait', type=float, default=30.0, metavar='S',
+                    help='WALL-CLOCK seconds to wait for the node: for the topics\' '
+                    'publishers to appear, then for the first message; nothing by then '
+                    'ends the recorder with exit 1 (default 30)')
     ap.add_argument('--camera', action='append', default=[], metavar='NAME',
                     help="also record camera NAME's images, camera_info and pose_out "
                     '(repeatable)')
     ap.add_argument('--wall-time', action='store_true',
-                    help='log receive (wall-clock) times instead of simulation time')
+                    help='log receive (wall-clock) times instead of simulation time '
+                    '(--duration still counts simulation time)')
     ap.add_argument('--recover', metavar='DIR', help='write metadata.yaml for a bag cut off '
                     'by a crash, then exit')
     a = ap.parse_args(args_ros)
@@ -237,9 +371,11 @@ def main(argv: List[str] = None) -> int:
         print(f'record: error: {out} already exists; bags are never overwritten or appended '
               'to, choose a new directory', file=sys.stderr)
         return 2
-    if a.duration < 0:
-        print('record: error: --duration must be >= 0', file=sys.stderr)
-        return 2
+    for name in ('duration', 'timeout', 'wait'):
+        if getattr(a, name) < 0:
+            print(f'record: error: --{name} must be >= 0 [s], got {getattr(a, name):g}',
+                  file=sys.stderr)
+            return 2
     # past a file-size limit a write then fails (EFBIG) instead of killing the process
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     bad = [c for c in a.camera if not c or '/' in c]
@@ -257,41 +393,57 @@ def main(argv: List[str] = None) -> int:
     stop_signals = (signal.SIGINT, signal.SIGTERM)
     for sig in stop_signals:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
+    # the node's clock follows /clock whatever the log times: --duration counts simulation
+    # time, and a message without a stamp of its own is at the /clock time it arrives at
     node = rclpy.create_node('cloth_recorder', parameter_overrides=[
-        Parameter('use_sim_time', value=not a.wall_time)])
+        Parameter('use_sim_time', value=True)])
     log = node.get_logger()
     bag = None
     code = 0
+    nothing = ''                         # why nothing was recorded, if nothing was
     try:
         deadline = time.monotonic() + a.wait
         types: Dict[str, str] = {}
         clock_wanted = not a.wall_time
-        while time.monotonic() < deadline and not stop:
+
+        def published(names) -> Dict[str, str]:
+            """Those of ``names`` that have a publisher (a topic with only subscribers, an
+            RViz waiting for the node, sends nothing), and their types."""
             graph = dict(node.get_topic_names_and_types())
-            types = {t: graph[t][0] for t in requested if t in graph}
+            return {t: graph[t][0] for t in names if t in graph and node.count_publishers(t)}
+        while time.monotonic() < deadline and not stop:
+            graph = published(requested + ['/clock'])
+            types = {t: graph[t] for t in requested if t in graph}
             # on sim time, /clock too (it can come up after the topics asked for)
             if len(types) == len(requested) and (not clock_wanted or '/clock' in graph):
                 break
             rclpy.spin_once(node, timeout_sec=0.1)
         if stop:
+            print('record: nothing recorded: interrupted while waiting for the node',
+                  file=sys.stderr)
             return 130
         if not types:
-            print(f'record: error: no publisher of {", ".join(requested)} after {a.wait:g} s',
-                  file=sys.stderr)
-            return 2
+            print(f'record: error: nothing recorded: no publisher of {", ".join(requested)} '
+                  f'within {a.wait:g} s (--wait, wall clock); is the node running, on this '
+                  'ROS_DOMAIN_ID?', file=sys.stderr)
+            return 1
         missing = [t for t in requested if t not in types]
         if missing:
             log.warning(f'no publisher of {", ".join(missing)} after {a.wait:g} s: recording '
                         'the others, and these from when they appear')
-        sim_time = not a.wall_time and '/clock' in dict(node.get_topic_names_and_types())
-        if not a.wall_time and not sim_time:
-            log.warning('no /clock publisher: logging wall-clock receive times')
-        if sim_time:                 # the latched /clock first: log times start right
-            end = time.monotonic() + 5.0
-            while (node.get_clock().now().nanoseconds == 0 and time.monotonic() < end
-                   and not stop):
-                rclpy.spin_once(node, timeout_sec=0.05)
+        clock_up = '/clock' in published(['/clock'])
+        readers = {t: stamp_reader(ty) for t, ty in types.items()}
+        if a.duration > 0 and not clock_up and not any(readers.values()):
+            print(f'record: error: --duration counts simulation seconds, but there is no '
+                  f'/clock publisher and none of {", ".join(types)} carries a stamp; use '
+                  '--timeout S for a wall-clock limit', file=sys.stderr)
+            return 2
+        sim_time = not a.wall_time and clock_up
         clock = node.get_clock()
+        if clock_up:                 # the latched /clock first: log times start right
+            end = time.monotonic() + a.wait
+            while clock.now().nanoseconds == 0 and time.monotonic() < end and not stop:
+                rclpy.spin_once(node, timeout_sec=0.05)
         # [the offset added to the sim clock, the last sim time read]: a ~/reset sends
         # the node's clock back to 0, and the log times continue from where they were
         back = [0, 0]
@@ -314,6 +466,9 @@ def main(argv: List[str] = None) -> int:
                   file=sys.stderr)
             return 2
         failure: List[str] = []
+        span = SimSpan()                       # the simulation time the bag covers
+        limit = int(round(a.duration * 1e9)) if a.duration > 0 else None
+        finished: List[bool] = []              # --duration reached
 
         def subscribe(topic: str, type_name: str):
             qos, text = _qos_of(node, topic)
@@ -325,10 +480,24 @@ def main(argv: List[str] = None) -> int:
                 log.warning(f'{topic}: not recorded, its type {type_name} is unknown to the '
                             f'bag writer ({type(exc).__name__}: {exc})')
                 return
+            read = readers.get(topic) or stamp_reader(type_name)
 
             def on_message(data, t=topic):
-                if failure:
+                if failure or finished:
                     return
+                sim = None
+                if read is not None:
+                    try:
+                        sim = read(data)
+                    except Exception:         # noqa: BLE001 (a malformed message: no stamp)
+                        sim = None
+                if sim is None and clock_up:
+                    sim = clock.now().nanoseconds or None
+                if sim is not None:
+                    if limit is not None and span.peek(t, sim) > limit:
+                        finished.append(True)  # the first message past the end: not kept
+                        return
+                    span.add(t, sim)
                 try:
                     bag.write(t, stamp(), data)
                 except BagWriteError as exc:
@@ -337,23 +506,55 @@ def main(argv: List[str] = None) -> int:
                                      raw=True)
         for topic, type_name in types.items():
             subscribe(topic, type_name)
-        log.info(f'recording {", ".join(types)} to {out}'
-                 f' ({"simulation" if sim_time else "wall-clock"} log times)')
-        end = time.monotonic() + a.duration if a.duration > 0 else None
-        next_look = time.monotonic() + 0.5
-        while (rclpy.ok() and not stop and not failure
-               and (end is None or time.monotonic() < end)):
+        start = time.monotonic()
+        first_by = start + a.wait              # the first message, or nothing is recorded
+        end = start + a.timeout if a.timeout > 0 else None
+        next_look = start + 0.5
+        said = False                           # the first message's log lines
+        timed_out = False
+        while rclpy.ok() and not stop and not failure and not finished:
+            now = time.monotonic()
+            if end is not None and now >= end:
+                timed_out = True
+                break
+            got = sum(bag.counts.values())
+            if not got and now >= first_by:
+                break
+            if got and not said:         # said once something is recorded, not before
+                said = True
+                log.info(f'recording {", ".join(types)} to {out}'
+                         f' ({"simulation" if sim_time else "wall-clock"} log times'
+                         + (f', {a.duration:g} s of simulation time' if limit else '')
+                         + (f', at most {a.timeout:g} s of wall time' if a.timeout > 0
+                            else '') + ')')
+                if not a.wall_time and not sim_time:
+                    log.warning('no /clock publisher: logging wall-clock receive times')
             rclpy.spin_once(node, timeout_sec=0.05)
             if missing and time.monotonic() >= next_look:
                 next_look = time.monotonic() + 0.5
-                graph = dict(node.get_topic_names_and_types())
+                graph = published(missing)
                 for t in [t for t in missing if t in graph]:
-                    subscribe(t, graph[t][0])
+                    subscribe(t, graph[t])
                     missing.remove(t)
                     log.info(f'{t} appeared: recording it too')
         if failure:
             print(f'record: error: writing {out} failed: {failure[0]}', file=sys.stderr)
             code = 1
+        elif not sum(bag.counts.values()):
+            if stop:
+                nothing = 'record: nothing recorded: interrupted before the first message'
+                code = 130
+            else:
+                why = (f'no message within --timeout {a.timeout:g} s (wall clock)'
+                       if timed_out else
+                       f'the publishers of {", ".join(types)} sent no message within '
+                       f'{a.wait:g} s (--wait, wall clock); is the node stuck?')
+                nothing = f'record: error: nothing recorded: {why}'
+                code = 1
+        elif timed_out and limit is not None:
+            log.warning(f'stopped by --timeout {a.timeout:g} s (wall clock) after '
+                        f'{span.elapsed() * 1e-9:.3f} s of the {a.duration:g} s of '
+                        'simulation time asked (--duration)')
     except BagWriteError as exc:                      # while adding a topic
         print(f'record: error: writing {out} failed: {exc}', file=sys.stderr)
         code = 1
@@ -366,8 +567,14 @@ def main(argv: List[str] = None) -> int:
             except BagWriteError as exc:
                 print(f'record: error: closing {out} failed: {exc}', file=sys.stderr)
                 code = 1
-            print(f'record: wrote {sum(bag.counts.values())} messages to {out} '
-                  f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())})')
+            if nothing:
+                _remove_empty_bag(out)
+                print(nothing, file=sys.stderr)
+            else:
+                covered = (f'; {span.elapsed() * 1e-9:.3f} s of simulation time'
+                           if span else '')
+                print(f'record: wrote {sum(bag.counts.values())} messages to {out} '
+                      f'({", ".join(f"{t}: {c}" for t, c in bag.counts.items())}){covered}')
         node.destroy_node()
         # rclpy's shutdown puts back the signals' default action (ending the process
         # with -2 on one more Ctrl-C): held back over it, then answered by nothing
@@ -377,7 +584,6 @@ def main(argv: List[str] = None) -> int:
             signal.signal(sig, lambda signum, frame: None)
         signal.pthread_sigmask(signal.SIG_UNBLOCK, stop_signals)
     return code
-
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -1,7 +1,7 @@
 """``render``: pictures of a recorded (or live) cloth, offscreen, without RViz.
 
     render BAG -o OUT [--times T ...] [--frames N] [--node cloth_node]
-    render --live SECONDS -o OUT [--wait S] # subscribe to the running node instead
+    render --live SECONDS -o OUT [--wait S] [--timeout S]   # the running node instead
 
 Writes into OUT: ``cloth_<t>s.png`` (shaded, coloured like the marker, one per chosen
 simulation time; default first, middle and last), ``cloth.gif`` (and ``cloth.mp4`` when
@@ -9,6 +9,14 @@ ffmpeg is on the PATH), and ``energy.png`` (every energy term against simulation
 The obstacles of ``~/obstacle_markers`` (spheres, boxes, cylinders, meshes; a plane as a
 square patch under the view) are drawn in grey with each frame, as they were at its time.
 Uses matplotlib's Agg backend: no display needed.
+
+Times are simulation time, the meshes' header stamps [s]. ``--times T`` draws the mesh
+nearest T; a T more than half a mesh interval past the last mesh (or before the first) is
+refused with one line naming the meshes' time range and exit 2, not drawn as the nearest
+frame. ``--live SECONDS`` collects SECONDS of simulation time from the first mesh (the
+meshes stamped within SECONDS of it; a ``~/reset`` does not restart the count), however
+long that takes on the wall clock; ``--wait`` (for the first mesh) and ``--timeout`` (the
+whole collection) are the wall-clock limits.
 """
 from __future__ import annotations
 
@@ -26,7 +34,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ['main', 'read_bag', 'render', 'render_frame', 'energy_plot', 'obstacle_polygons']
+__all__ = ['main', 'read_bag', 'render', 'render_frame', 'energy_plot', 'obstacle_polygons',
+           'mesh_times', 'check_times', 'TimesOutsideBag']
 
 ENERGY_KEYS = ('kinetic', 'stretching', 'bending', 'coupling', 'gravity', 'total',
                'external_work', 'dissipated')
@@ -61,6 +70,38 @@ def _decode_energy(raw: bytes) -> Tuple[float, dict]:
             pass
     return vals.get('sim_time', msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec), vals
 
+
+
+class TimesOutsideBag(ValueError):
+    """A time asked for (``--times``) lies outside the meshes' time range."""
+
+
+def mesh_times(meshes: List[bytes]) -> np.ndarray:
+    """The simulation times [s] of serialised ``~/mesh`` MarkerArrays (their first marker's
+    header stamp), read without deserialising them; NaN for a message without a marker."""
+    from .record import stamp_reader
+    read = stamp_reader('visualization_msgs/msg/MarkerArray')
+    ts = [read(raw) for raw in meshes]
+    return np.array([np.nan if t is None else t * 1e-9 for t in ts], dtype=float)
+
+
+def check_times(times, ts: np.ndarray) -> None:
+    """Raise :class:`TimesOutsideBag` if a time of ``times`` [s] lies more than half the
+    median mesh interval past the last of the mesh times ``ts`` [s] or before the first
+    (its nearest mesh would not be the cloth at that time)."""
+    ts = ts[np.isfinite(ts)]
+    if not len(ts) or not times:
+        return
+    steps = np.diff(np.sort(np.unique(ts)))
+    slack = 0.5 * float(np.median(steps)) if len(steps) else 0.0
+    lo, hi = float(ts.min()), float(ts.max())
+    late = [t for t in times if t > hi + slack]
+    early = [t for t in times if t < lo - slack]
+    if late or early:
+        which = (f'{", ".join(f"{t:g}" for t in late)} s past the last mesh' if late else
+                 f'{", ".join(f"{t:g}" for t in early)} s before the first mesh')
+        raise TimesOutsideBag(f'--times {which}: the meshes span {lo:.3f} s to {hi:.3f} s '
+                              'of simulation time')
 
 def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str = ''):
     """Raw mesh and energy messages of a rosbag2 directory, in recording order, and the
@@ -227,17 +268,22 @@ def energy_plot(energies, path: Path):
 def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
            frames: int = 60, obstacles=()) -> List[Path]:
     """Pictures, animation and energy plot of the mesh messages (module docstring);
-    ``obstacles``: (index of the first mesh it applies to, raw ~/obstacle_markers) in
-    recording order (:func:`read_bag`)."""
-    out.mkdir(parents=True, exist_ok=True)
+    ``times``: the simulation times [s] to draw (the nearest mesh each; one outside the
+    meshes' range raises :class:`TimesOutsideBag` before anything is written; None: first,
+    middle and last); ``obstacles``: (index of the first mesh it applies to, raw
+    ~/obstacle_markers) in recording order (:func:`read_bag`)."""
     if not meshes:
         raise SystemExit('render: no mesh messages to draw')
+    if times:
+        ts = mesh_times(meshes)
+        check_times(times, ts)            # before anything is written
+        ts = np.where(np.isfinite(ts), ts, np.inf)
+    out.mkdir(parents=True, exist_ok=True)
     pick = np.unique(np.linspace(0, len(meshes) - 1, min(frames, len(meshes))).astype(int))
     decoded = {i: _decode_mesh(meshes[i]) for i in pick}
     written = []
-    if times:
-        ts = np.array([decoded[i][0] for i in pick])
-        chosen = sorted({int(pick[np.argmin(np.abs(ts - t))]) for t in times})
+    if times:                             # the nearest of all meshes, not only the frames'
+        chosen = sorted({int(np.argmin(np.abs(ts - t))) for t in times})
     else:
         chosen = sorted({int(pick[0]), int(pick[len(pick) // 2]), int(pick[-1])})
     for i in chosen:
@@ -286,53 +332,100 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     return written
 
 
-def live(seconds: float, node_name: str, wait: float = 60.0):
-    """Collect raw mesh and energy messages from the running node for ``seconds``, counted
-    from the first mesh (discovery and a node still compiling its kernels can take a
-    while: up to ``wait`` seconds). Returns empty lists if nothing came."""
+def live(seconds: float, node_name: str, wait: float = 60.0, timeout: float = 0.0):
+    """Collect raw mesh and energy messages from the running node: those stamped within
+    ``seconds`` of SIMULATION time from the first mesh (the count goes on across a
+    ``~/reset``: :class:`.record.SimSpan`); the first mesh past that ends the collection
+    and is left out. Wall-clock limits: up to ``wait`` seconds for the first mesh
+    (discovery, a node starting), and ``timeout`` seconds (0: none) for the whole
+    collection. Returns (meshes, energies, simulation seconds collected); empty lists if
+    no mesh came."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from visualization_msgs.msg import MarkerArray
+    from .record import SimSpan, stamp_reader
+    limit = int(round(seconds * 1e9))
+    read = {'mesh': stamp_reader('visualization_msgs/msg/MarkerArray'),
+            'energy': stamp_reader('diagnostic_msgs/msg/DiagnosticArray')}
+    span = SimSpan()
+    meshes, energies, done = [], [], []
+
+    def keep(kind, into):
+        def on_message(raw):
+            if done:
+                return
+            t = read[kind](raw)
+            if t is not None:
+                if kind == 'mesh' and span.peek(kind, t) > limit:
+                    done.append(True)             # the first mesh past the end
+                    return
+                if kind == 'energy' and (not meshes or span.after(kind, t) > limit):
+                    return                        # before the first mesh, or past the end
+                span.add(kind, t)
+            into.append(raw)
+        return on_message
     rclpy.init()
     node = rclpy.create_node('cloth_render')
-    meshes, energies = [], []
-    node.create_subscription(MarkerArray, f'/{node_name}/mesh', meshes.append, 10, raw=True)
-    node.create_subscription(DiagnosticArray, f'/{node_name}/energy', energies.append, 10,
+    node.create_subscription(MarkerArray, f'/{node_name}/mesh', keep('mesh', meshes), 10,
                              raw=True)
+    node.create_subscription(DiagnosticArray, f'/{node_name}/energy',
+                             keep('energy', energies), 10, raw=True)
     end = time.monotonic() + wait
     try:
         while not meshes and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
-        end = time.monotonic() + seconds
-        while meshes and time.monotonic() < end:
+        end = time.monotonic() + timeout if timeout > 0 else None
+        while meshes and not done and (end is None or time.monotonic() < end):
             rclpy.spin_once(node, timeout_sec=0.05)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-    return meshes, energies
+    return meshes, energies, span.elapsed('mesh') * 1e-9
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='render', description='Pictures of the cloth.')
+    """The ``render`` command (module docstring). Exit codes: 0 drawn; 1 no mesh came
+    (``--live``); 2 a usage error, a bag it cannot read, ``--times`` outside the meshes'
+    time range."""
+    ap = argparse.ArgumentParser(
+        prog='render', description='Pictures of the cloth. Times are simulation time (the '
+        "meshes' stamps); the wall-clock limits of --live are --wait and --timeout.")
     ap.add_argument('bag', nargs='?', help='rosbag2 directory')
     ap.add_argument('-o', '--output', required=True, help='output directory')
-    ap.add_argument('--times', type=float, nargs='*', help='simulation times to draw [s]')
+    ap.add_argument('--times', type=float, nargs='*', metavar='T',
+                    help='simulation times to draw [s], each as the nearest mesh; a time '
+                    'more than half a mesh interval past the last mesh (or before the '
+                    'first) is an error (exit 2)')
     ap.add_argument('--frames', type=int, default=60, help='frames in the animation')
     ap.add_argument('--node', default='cloth_node', help='node whose topics to draw')
     ap.add_argument('--live', type=float, metavar='SECONDS',
-                    help='subscribe to the running node for SECONDS (from its first mesh) '
-                         'instead of reading a bag')
-    ap.add_argument('--wait', type=float, default=60.0,
-                    help='with --live: how long to wait for the first mesh [s]')
+                    help='subscribe to the running node instead of reading a bag, for '
+                    'SECONDS of SIMULATION time from its first mesh (however long that '
+                    'takes on the wall clock)')
+    ap.add_argument('--wait', type=float, default=60.0, metavar='S',
+                    help='with --live: WALL-CLOCK seconds to wait for the first mesh '
+                    '(default 60)')
+    ap.add_argument('--timeout', type=float, default=0.0, metavar='S',
+                    help='with --live: WALL-CLOCK limit on the collection, however far the '
+                    'simulation got; 0 (default): none')
     a = ap.parse_args(argv)
     if a.frames < 1:
         ap.error(f'--frames must be at least 1, got {a.frames}')
-    if a.live:
-        meshes, energies = live(a.live, a.node, a.wait)
+    if a.live is not None and a.live <= 0:
+        ap.error(f'--live takes a positive number of simulation seconds, got {a.live:g}')
+    if a.wait < 0 or a.timeout < 0:
+        ap.error('--wait and --timeout must be >= 0 [s]')
+    obstacles = ()
+    if a.live is not None:
+        meshes, energies, got = live(a.live, a.node, a.wait, a.timeout)
         if not meshes:
-            print(f'render: error: no mesh from /{a.node}/mesh within {a.wait:g} s; is the '
-                  'node running (same ROS_DOMAIN_ID)?', file=sys.stderr)
+            print(f'render: error: no mesh from /{a.node}/mesh within {a.wait:g} s (--wait, '
+                  'wall clock); is the node running (same ROS_DOMAIN_ID)?', file=sys.stderr)
             return 1
+        if got < a.live and a.timeout > 0:
+            print(f'render: warning: stopped by --timeout {a.timeout:g} s (wall clock) '
+                  f'after {got:.3f} of the {a.live:g} s of simulation time asked',
+                  file=sys.stderr)
     elif a.bag:
         if not os.path.isdir(a.bag):
             print(f'render: error: {a.bag} is not a bag directory', file=sys.stderr)
@@ -347,11 +440,14 @@ def main(argv=None) -> int:
             return 2
     else:
         ap.error('give a BAG directory or --live SECONDS')
-    for p in render(meshes, energies, Path(a.output), a.times, a.frames,
-                    obstacles if a.bag else ()):
+    try:
+        written = render(meshes, energies, Path(a.output), a.times, a.frames, obstacles)
+    except TimesOutsideBag as exc:
+        print(f'render: error: {exc}', file=sys.stderr)
+        return 2
+    for p in written:
         print(f'render: wrote {p}')
     return 0
-
 
 if __name__ == '__main__':
     sys.exit(main())
