@@ -236,3 +236,61 @@ def test_the_energy_balance_closes_for_a_moving_handle(solver):
     mass = 0.2 * 0.2 * 0.2
     assert e1['kinetic'] == pytest.approx(0.5 * mass * 1.0 ** 2, rel=1e-6)
     assert abs(change - ledger) < 1e-3 * abs(change), (change, ledger)
+
+
+def test_waypoints_streamed_ahead_are_each_reached_on_time():
+    """Waypoints given ahead of sim time (``move_handle(..., at=)``): the handle is at each
+    when sim time first reaches it (within one step's motion), moves linearly in between,
+    and a later waypoint given before an earlier one's time drops the ones after it."""
+    sim = _sim(12, 0.5, damping=0.5)
+    c = _corners(sim)[0]
+    h = sim.grasp(point=c, radius=0.03)
+    dt = sim.dt
+    times = [0.013, 0.05, 0.0777, 0.11]
+    points = [c + [0.0, 0.0, 0.02], c + [0.03, 0.0, 0.02], c + [0.03, 0.01, 0.0],
+              c + [0.0, 0.0, 0.0]]
+    for t, p in zip(times, points):
+        sim.move_handle(h, p, at=t)
+    assert len(sim.handle_waypoints(h)) == 1 + len(times)
+    for t, p in zip(times, points):
+        sim.step(int(math.ceil((t - sim.time) / dt - 1e-9)))
+        assert t <= sim.time < t + dt
+        after = sim.time - t
+        wp = sim.handle_waypoints(h)
+        nxt = wp[1] if len(wp) > 1 else None
+        speed = 0.0 if nxt is None else np.linalg.norm(nxt[1] - p) / (nxt[0] - t)
+        got = np.array(sim.handles[h]['position'])
+        assert np.linalg.norm(got - p) <= speed * after + 1e-12, (t, got, p)
+    assert not sim.handles[h]['moving']
+    # half way along a segment: the linear interpolation
+    sim.move_handle(h, c + [0.04, 0.0, 0.0], at=sim.time + 0.04)
+    t0, p0 = sim.time, np.array(sim.handles[h]['position'])
+    sim.step(int(round(0.02 / dt)))
+    s = (sim.time - t0) / 0.04
+    np.testing.assert_allclose(sim.handles[h]['position'], p0 + s * (c + [0.04, 0, 0] - p0),
+                               atol=1e-12)
+    # a waypoint before the last one given drops the later ones
+    sim.step(int(math.ceil((t0 + 0.04 - sim.time) / dt - 1e-9)))
+    now = sim.time
+    sim.move_handle(h, c + [0.0, 0.05, 0.0], at=now + 0.05)
+    sim.move_handle(h, c + [0.0, 0.02, 0.0], at=now + 0.03)
+    wp = sim.handle_waypoints(h)
+    assert [w[0] for w in wp] == [now, now + 0.03]
+
+
+def test_waypoints_in_the_past_or_beyond_the_bound_are_refused():
+    from cosserat_ros.core.handles import MAX_WAYPOINTS
+    sim = _sim()
+    c = _corners(sim)[0]
+    h = sim.grasp(point=c, radius=0.03)
+    sim.step(10)
+    with pytest.raises(ValueError, match='after the present'):
+        sim.move_handle(h, c, at=sim.time)
+    with pytest.raises(ValueError, match='not both'):
+        sim.move_handle(h, c, duration=0.1, at=sim.time + 1)
+    for k in range(MAX_WAYPOINTS):
+        sim.move_handle(h, c, at=sim.time + 1 + k)
+    with pytest.raises(ValueError, match='waypoints ahead'):
+        sim.move_handle(h, c, at=sim.time + 1e4)
+    sim.move_handle(h, c, duration=0.1)                # a duration replaces the path
+    assert len(sim.handle_waypoints(h)) == 2

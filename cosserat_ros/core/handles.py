@@ -3,12 +3,17 @@ and the exact wrench the handle exerts to move them.
 
 A handle grabs vertices (those within a radius of a point, or a list), keeps their offsets
 ``o_i = R^T (x_i - p)`` in its frame (pose p, R at the grasp) and from then on prescribes
-their motion ``x_i(t) = p(t) + R(t) o_i``. Between two commanded poses the pose moves
-linearly in position and along the shortest arc in orientation (slerp) over the
-command's duration; the compiled step sees a prescribed velocity per vertex, constant
+their motion ``x_i(t) = p(t) + R(t) o_i``. The pose follows a path of waypoints (t_k, p_k,
+q_k) in sim time, linearly in position and along the shortest arc in orientation (slerp)
+between two of them. A command with a duration replaces the path by one segment from
+where the handle is; a command with an arrival time ``at`` keeps the waypoints before
+``at``, drops those after it and ends the path there, so a controller can stream a
+trajectory ahead of simulation time (at most :data:`MAX_WAYPOINTS` waypoints ahead). The
+compiled step sees a prescribed velocity per vertex, constant
 over one call (``Control.pin_velocity``), chosen so that each call ends exactly on the
 path: the simulator splits a step(n) into calls that each turn a handle by at most
-:data:`MAX_TURN` and end where a motion ends.
+:data:`MAX_TURN` and end at the first step that reaches a waypoint (a handle is at a
+waypoint on time within one step).
 
 Reaction (``core/solvers/update.py``): a held vertex of mass m, with internal, applied,
 gravity and damping forces f and velocity v_old, gets the prescribed velocity u; the
@@ -35,13 +40,15 @@ import numpy as np
 from .contact import rotation_matrix
 from .obstacles import _quaternion, _vec, id_key
 
-__all__ = ['HandleSet', 'MAX_TURN', 'turn_angle']
+__all__ = ['HandleSet', 'MAX_TURN', 'MAX_WAYPOINTS', 'turn_angle']
 
 #: the most a handle turns within one compiled call [rad] (the chord of a turning offset
 #: stays within MAX_TURN^2 / 8 of the arc, relative)
 MAX_TURN = 0.02
 #: [s] the longest call of the compiled step between two checks of the break forces
 BREAK_CHECK = 0.005
+#: the most waypoints a handle keeps ahead of simulation time (bounded work per command)
+MAX_WAYPOINTS = 256
 
 
 def _slerp(q0, q1, s):
@@ -62,16 +69,29 @@ def turn_angle(q0, q1) -> float:
 
 
 class _Handle:
-    __slots__ = ('name', 'idx', 'offsets', 'position', 'orientation', 'motion',
+    __slots__ = ('name', 'idx', 'offsets', 'position', 'orientation', 'path',
                  'break_force')
 
     def pose_at(self, t):
-        """The handle's pose at sim time t (on its current motion)."""
-        if self.motion is None:
+        """The handle's pose at sim time t on its path [(t_k, p_k, q_k), ...] (before the
+        first waypoint: the first; after the last: the last)."""
+        path = self.path
+        if not path:
             return self.position, self.orientation
-        t0, T, p0, q0, p1, q1 = self.motion
-        s = 1.0 if T <= 0 else min(1.0, max(0.0, (t - t0) / T))
-        return p0 + s * (p1 - p0), _slerp(q0, q1, s)
+        if t <= path[0][0]:
+            return path[0][1], path[0][2]
+        for (ta, pa, qa), (tb, pb, qb) in zip(path, path[1:]):
+            if t < tb:
+                s = (t - ta) / (tb - ta)
+                return pa + s * (pb - pa), _slerp(qa, qb, s)
+        return path[-1][1], path[-1][2]
+
+    def segment(self, t):
+        """The waypoints (a, b) of the segment under way at t, or None if not moving."""
+        for a, b in zip(self.path, self.path[1:]):
+            if t < b[0] - 1e-12:
+                return a, b
+        return None
 
 
 class HandleSet:
@@ -128,24 +148,48 @@ class HandleSet:
         q = _quaternion(orientation)
         h.position, h.orientation = p.copy(), q
         h.offsets = (x[idx] - p) @ rotation_matrix(q)          # R^T (x - p), row-wise
-        h.motion = None
+        h.path = []
         hid = self._next
         self._next += 1
         self._items[hid] = h
         return hid
 
-    def move(self, hid, t, dt, position, orientation, duration) -> None:
+    def move(self, hid, t, dt, position, orientation, duration=None, at=None) -> None:
+        """Head for (position, orientation) from sim time t: over ``duration`` [s] (at
+        least a step; None: one step), replacing the path; or arriving at sim time ``at``
+        (> t), after the waypoints before ``at`` (those after it are dropped)."""
         h = self._item(hid)
         p1 = _vec(position, 'position')
         q1 = _quaternion(orientation)
-        if duration is None:
-            duration = dt
-        duration = float(duration)
-        if not (math.isfinite(duration) and duration >= 0):
-            raise ValueError(f'duration must be >= 0, got {duration!r}')
         p0, q0 = h.pose_at(t)
+        if at is None:
+            if duration is None:
+                duration = dt
+            duration = float(duration)
+            if not (math.isfinite(duration) and duration >= 0):
+                raise ValueError(f'duration must be >= 0, got {duration!r}')
+            kept = []
+            at = t + max(duration, dt)
+        else:
+            if duration is not None:
+                raise ValueError('give duration or at, not both')
+            at = float(at)
+            if not (math.isfinite(at) and at > t):
+                raise ValueError(f'at must be a sim time after the present {t!r} s, '
+                                 f'got {at!r}')
+            kept = [w for w in h.path if t < w[0] < at]
+            if len(kept) >= MAX_WAYPOINTS:
+                raise ValueError(f'{len(kept)} waypoints ahead already, at most '
+                                 f'{MAX_WAYPOINTS}')
         h.position, h.orientation = p0, q0
-        h.motion = (t, max(duration, dt), p0.copy(), q0.copy(), p1, q1)
+        h.path = [(t, p0.copy(), q0.copy())] + kept + [(at, p1, q1)]
+
+    def waypoints(self, hid, t) -> list:
+        """[(t_k, position, orientation)]: the pose at t, then the waypoints ahead."""
+        h = self._item(hid)
+        p, q = h.pose_at(t)
+        return [(t, p.copy(), q.copy())] + [(w[0], w[1].copy(), w[2].copy())
+                                            for w in h.path if w[0] > t]
 
     def release(self, hid) -> np.ndarray:
         return self._items.pop(id_key(self._items, hid, 'handle')).idx
@@ -161,25 +205,26 @@ class HandleSet:
 
     @staticmethod
     def _moving(h, t) -> bool:
-        return h.motion is not None and t < h.motion[0] + h.motion[1] - 1e-12
+        return bool(h.path) and t < h.path[-1][0] - 1e-12
 
     def moving(self, t) -> bool:
         return any(self._moving(h, t) for h in self._items.values())
 
     def plan(self, t, dt, n) -> int:
-        """Steps of the next call (at most n): to the end of the nearest motion, no more
-        than a turn of :data:`MAX_TURN` for any handle, and with a break force at most
-        :data:`BREAK_CHECK` seconds between two checks of it."""
+        """Steps of the next call (at most n): to the first step that reaches the nearest
+        waypoint, no more than a turn of :data:`MAX_TURN` for any handle, and with a
+        break force at most :data:`BREAK_CHECK` seconds between two checks of it."""
         k = n
         if any(h.break_force is not None for h in self._items.values()):
             k = min(k, max(1, int(BREAK_CHECK / dt)))
         for h in self._items.values():
-            if not self._moving(h, t):
+            seg = h.segment(t)
+            if seg is None:
                 continue
-            t0, T, p0, q0, p1, q1 = h.motion
-            left = max(1, int(math.ceil((t0 + T - t) / dt - 1e-9)))
+            (ta, _, qa), (tb, _, qb) = seg
+            left = max(1, int(math.ceil((tb - t) / dt - 1e-9)))
             k = min(k, left)
-            turn = turn_angle(q0, q1) / T * dt                       # per step
+            turn = turn_angle(qa, qb) / (tb - ta) * dt                   # per step
             if turn > 0:
                 k = min(k, max(1, int(MAX_TURN / turn)))
         return max(1, k)
@@ -205,8 +250,10 @@ class HandleSet:
         """After a call: the handles' poses at t (motions done are dropped)."""
         for h in self._items.values():
             h.position, h.orientation = h.pose_at(t)
-            if h.motion is not None and not self._moving(h, t):
-                h.motion = None
+            if h.path:
+                ahead = [w for w in h.path if w[0] > t + 1e-12]
+                h.path = ([(t, h.position.copy(), h.orientation.copy())] + ahead
+                          if ahead else [])
 
     def wrench(self, hid, x, reaction):
         h = self._item(hid)

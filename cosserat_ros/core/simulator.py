@@ -574,12 +574,21 @@ class ClothSimulator:
         return hid
 
     def move_handle(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
-                    duration=None) -> None:
+                    duration=None, at=None) -> None:
         """Move handle ``id`` to ``position`` [m], ``orientation`` (quaternion x, y, z, w),
         reached linearly (slerp for the orientation) over ``duration`` seconds of sim
-        time (default: over the next step). A new command starts from wherever the
-        handle is then."""
-        self._handles.move(id, self._time, self._dt, position, orientation, duration)
+        time (default: over the next step), starting from wherever the handle is and
+        replacing what it was doing; or, with ``at``, a sim time [s] after :attr:`time`,
+        arriving there at ``at`` (within one step) after the waypoints already given
+        before ``at`` (those after it are dropped): a trajectory streamed ahead of
+        simulation time, at most :data:`.handles.MAX_WAYPOINTS` waypoints. ``ValueError``
+        for a time not ahead or too many waypoints."""
+        self._handles.move(id, self._time, self._dt, position, orientation, duration, at)
+
+    def handle_waypoints(self, id) -> list:
+        """[(time [s], position (3,), orientation (x, y, z, w))]: handle ``id``'s pose now,
+        then the waypoints it has ahead (:meth:`move_handle`)."""
+        return self._handles.waypoints(id, self._time)
 
     def handle_wrench(self, id):
         """(force (3) [N], torque (3) [N m]) the handle exerted on the cloth over the last
