@@ -57,12 +57,68 @@ change less the first, is external work (``State.acc``), so the energy balance o
 report still closes, at rest too (with the update's own ledger corrected to the
 displacement after contact: :func:`.solvers.update.contact_vertex`).
 
+Obstacles placed through the cloth
+----------------------------------
+The response above keeps out a vertex that comes from outside: the step ends it at
+``d >= th`` up to the push out, which moves it by the little a curved surface or the
+obstacle's own travel (at most th / 4 a call, :mod:`.obstacles`) left it inside the
+layer. A vertex inside the solid itself (``d < 0``: a penetration beyond the contact
+thickness) was put there by no step but by the user: an obstacle added, or given a new
+pose, through the cloth. Pushing it out would move it by ``th - d`` in one step, a
+position change without velocity whose work nobody books, and the step cannot tell to
+which side it belongs, as it came from neither. Measured on the README's library
+example (the 1 m cloth hanging from two corners to z = -0.47 m) with a ground added at
+z = 0: the cloth stood up on the ground in one step, its total energy went from -0.36 J
+to +1.81 J (+1.10 J after 1000 steps), 2.2 J that neither the external work nor the
+dissipation booked.
+
+Such a vertex is therefore *released* from that obstacle: neither its response, nor its
+push out, nor self-collision's pushes onto the obstacles (:mod:`.self_contact`) act on
+it, until a step starts with it out of the obstacle's layer (``d >= th``, or beyond its
+reach), from which on it is in contact as any vertex that comes from outside (its
+obstacle's next approach is cut at the layer). An obstacle placed through the cloth so
+stays through it, as its corners and edges do (:mod:`.features`), and the placement adds
+no energy beyond what pushes the vertices found in its layer but outside its solid
+(``0 <= d_i < th``) onto the layer, by ``delta_i = th - d_i <= th`` along the normal
+with no velocity, as a resting contact's push: with ``f_i`` the force on vertex i
+(elastic, weight, applied) and ``omega_max^2`` the largest eigenvalue of ``M^-1 K``
+(:meth:`.simulator.ClothSimulator.max_eigenvalue`), which bounds the stiffness's
+quadratic form by the mass's, the potential energy rises by at most::
+
+    dE <= sum_i |f_i| delta_i + 1/2 omega_max^2 sum_i m_i delta_i^2     [J]
+
+to second order in delta (the kinetic energy does not rise: the response only removes
+approach and slip). The cloth hanging through a ground added under it hangs on exactly
+as without the ground (no vertex of it is in contact, none in the layer: dE = 0); when a
+released vertex comes out of the layer (the ground lowered below it, say), the ground
+holds it from then on.
+
+Which vertices: an obstacle added, every vertex inside its solid (``d < 0``). An obstacle
+given a new pose (``ClothSimulator.set_obstacle_pose``): the vertices inside it at the
+new pose, but those within ``2 th`` of it at the old one, which the pose carries (a
+cloth lying on a table moved by a jump: the next step's push out puts them back on its
+layer, position without velocity, as before this rule; stream poses with velocities,
+or a jump of more than the layer moves them unbooked), and those released before and
+still in its layer stay released. A pinned or held vertex is in no contact: it has no
+release (a vertex let go inside an obstacle is pushed out, as before); a vertex that a
+reset or ``set_positions`` moves has none any more (the cloth placed anew, not the
+obstacle: inside one, it is pushed out, as before); nor have the obstacles from the
+65th table row on a bit (pushed out).
+
+The release is a mask of obstacle rows per vertex (two columns of ``Control.contact``,
+:data:`C_FREE`, bits 0-31 and 32-63 as exact integers) that the simulator sets when it
+places an obstacle (:meth:`.obstacles.ObstacleSet.release`) and moves with the rows when
+the set changes; :func:`resolve` (and the implicit step's constraints) clear a bit where
+they test the obstacle from the vertex's position at the step's start and find it
+outside the layer, or where the broad phase leaves it out (:func:`near_mask`: every
+vertex of the group starts more than ``2 th`` plus the step's travel away from it).
+
 Layout: the obstacles are rows of :data:`WIDTH` floats in ``Control.obstacles`` (columns
 named below), mesh fields in ``Control.sdf_meta`` / ``Control.sdf_data``; per vertex, the
 last step's contact in ``Control.contact`` (force on the vertex (3), obstacle row or -1,
 gap ``d - th`` at its old position, and where a second obstacle acted in the step, its
-part of the force (3) and row; the columns ``C_*`` below). This module imports no ROS
-package.
+part of the force (3) and row; then the release mask; the columns ``C_*`` below). This
+module imports no ROS package.
 """
 from __future__ import annotations
 
@@ -100,13 +156,16 @@ WIDTH = 27
 # Control.contact columns: the vertex's whole contact force over the step (3), the row of
 # the obstacle it touched (-1: none), its gap at the step's start, and where it touched a
 # second obstacle in the step (a corner), the part of the force that one took (3) and its
-# row (-1: none); more than two in one step count with the second
+# row (-1: none); more than two in one step count with the second; then the rows of the
+# obstacles it is released from (module docstring, "Obstacles placed through the cloth"):
+# bits 0-31 and 32-63 of that mask, each an integer held exactly by a float
 C_FORCE = 0
 C_ID = 3
 C_GAP = 4
 C_FORCE2 = 5
 C_ID2 = 8
-C_WIDTH = 9
+C_FREE = 9
+C_WIDTH = 11
 
 #: distance reported where a mesh's field has no sample (outside its grid): no contact
 FAR = 1e30
@@ -129,6 +188,8 @@ PUSHES = 32
 MASK_BITS = 64
 #: the mask that keeps every obstacle
 ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+#: the low 32 bits of a mask (:data:`C_FREE`)
+_LOW = np.uint64(0xFFFFFFFF)
 
 
 def rotation_matrix(q) -> np.ndarray:
@@ -351,6 +412,39 @@ def _next(m, k, nob):
 
 
 @kernel(refcount=False, forceinline=True)
+def _bit(k):
+    """The mask bit of obstacle row k (0 from the 65th row on: no bit)."""
+    return nb.uint64(1) << nb.uint64(k) if k < MASK_BITS else nb.uint64(0)
+
+
+@kernel(refcount=False, forceinline=True)
+def released(contact, i):
+    """The mask of the obstacle rows vertex i is released from (module docstring,
+    "Obstacles placed through the cloth"), from its ``Control.contact`` row."""
+    return (nb.uint64(contact[i, C_FREE])
+            | (nb.uint64(contact[i, C_FREE + 1]) << nb.uint64(32)))
+
+
+@kernel(refcount=False, forceinline=True)
+def _store_released(contact, i, free):
+    contact[i, C_FREE] = float(free & nb.uint64(_LOW))
+    contact[i, C_FREE + 1] = float(free >> nb.uint64(32))
+
+
+def released_rows(contact: np.ndarray) -> np.ndarray:
+    """Every vertex's release mask, (n,) uint64 (:func:`released`)."""
+    return (contact[:, C_FREE].astype(np.uint64)
+            | (contact[:, C_FREE + 1].astype(np.uint64) << np.uint64(32)))
+
+
+def store_released_rows(contact: np.ndarray, masks: np.ndarray) -> None:
+    """Write every vertex's release mask (n,) uint64 into ``contact``, in place."""
+    masks = np.asarray(masks, dtype=np.uint64)
+    contact[:, C_FREE] = (masks & _LOW).astype(np.float64)
+    contact[:, C_FREE + 1] = (masks >> np.uint64(32)).astype(np.float64)
+
+
+@kernel(refcount=False, forceinline=True)
 def near_mask(lo0, lo1, lo2, hi0, hi1, hi2, vmax, ob, th, dt):
     """Broad phase of a group of vertices (a chunk or a tile of the step) whose old
     positions lie in the box [lo, hi] and whose speeds before contact are at most vmax:
@@ -420,9 +514,12 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
     on the layer (:func:`push_out`). An obstacle whose bounding sphere is beyond the
     vertex's reach this step (thickness plus the step's travel of both) is skipped
     before its distance is evaluated, and so is every obstacle k < 64 whose bit is clear
-    in ``mask`` (:func:`near_mask`). Only scalars and the contact arrays come in, so the
-    step's position and velocity arrays stay private to its loop (no aliasing for LLVM
-    to assume)."""
+    in ``mask`` (:func:`near_mask`). An obstacle the vertex is released from (row i's
+    :func:`released` mask) is skipped while the vertex starts the step inside its layer
+    (d < th); found outside it (tested, beyond its reach, or left out by ``mask``), the
+    vertex is released no more, and the mask is written back to row i (module
+    docstring). Only scalars and the contact arrays come in, so the step's position and
+    velocity arrays stay private to its loop (no aliasing for LLVM to assume)."""
     b0 = v0
     b1 = v1
     b2 = v2
@@ -435,6 +532,8 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
     work = 0.0
     diss = 0.0
     speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    # an obstacle the mask leaves out is one the vertex starts out of the layer of
+    free = released(out, i) & nb.uint64(mask)
     nob = ob.shape[0]
     left = nb.uint64(mask) & _bits(0, nob)
     k = nb.int64(-1)
@@ -442,9 +541,15 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
         k, left = _next(left, k, nob)
         if k < 0:
             break
+        bit = _bit(k)
         if _far(ob, k, x0, x1, x2, th + dt * (speed + ob[k, SPEED])):
+            free &= ~bit                        # far outside it: released no more
             continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
+        if free & bit != nb.uint64(0):
+            if d < th:
+                continue                        # still inside: it does not act
+            free &= ~bit                        # outside: in contact as any vertex
         gap = min(gap, d - th)
         o0, o1, o2 = _point_velocity(ob, k, x0, x1, x2)
         u0 = v0 - o0
@@ -503,11 +608,12 @@ def resolve(i, x0, x1, x2, v0, v1, v2, fs0, fs1, fs2, m, dt, ob, meta, data, th,
     out[i, C_FORCE2 + 1] = m * s1 / dt
     out[i, C_FORCE2 + 2] = m * s2 / dt
     out[i, C_ID2] = hit2
+    _store_released(out, i, free)
     return v0, v1, v2, work, diss
 
 
 @kernel(refcount=False, forceinline=True)
-def push_out(x0, x1, x2, ob, meta, data, th, mask):
+def push_out(x0, x1, x2, ob, meta, data, th, mask, free=0):
     """A vertex just moved to x, put back on the contact layer of every obstacle it is
     inside (along the normal; no velocity change): the corrected (x0, x1, x2). Obstacles
     whose bit is clear in ``mask`` (:func:`near_mask`) are skipped until a push has moved
@@ -516,9 +622,12 @@ def push_out(x0, x1, x2, ob, meta, data, th, mask):
     take the vertex back into the floor's layer, in a corner) and the same one (whose
     distance, deep inside a mesh or on a curved surface, is not exact along the push),
     up to :data:`PUSHES` pushes: in a wedge narrower than the layer no position is
-    outside both, and the vertex ends on the layer of the last obstacle that pushed it."""
+    outside both, and the vertex ends on the layer of the last obstacle that pushed it.
+    The obstacles whose bits are set in ``free`` (the vertex's :func:`released` mask)
+    never push it."""
     nob = ob.shape[0]
-    left = nb.uint64(mask) & _bits(0, nob)
+    keep = ~nb.uint64(free)
+    left = nb.uint64(mask) & _bits(0, nob) & keep
     k = nb.int64(-1)
     pushes = 0
     while True:
@@ -534,10 +643,10 @@ def push_out(x0, x1, x2, ob, meta, data, th, mask):
             x2 += (th - d) * n2
             pushes += 1
             if pushes < PUSHES:                 # every obstacle again, this one too
-                left = _bits(0, nob)
+                left = _bits(0, nob) & keep
                 k = nb.int64(-1)
             else:                               # the last pass: the later ones only
-                left = _bits(k + 1, nob)
+                left = _bits(k + 1, nob) & keep
     return x0, x1, x2
 
 

@@ -128,7 +128,7 @@ import numba as nb
 import numpy as np
 
 from .compiled import kernel
-from .contact import C_FORCE, C_FORCE2, C_ID, C_ID2, distance
+from .contact import C_FORCE, C_FORCE2, C_ID, C_ID2, _bit, distance, released
 from .surface_query import point_triangle_sq
 from .terms.jet import cross
 
@@ -743,8 +743,12 @@ def _kick(j, x, v, dt, c0, c1, c2):
 def _onto_obstacles(j, x, v, dt, mass, ob, meta, data, th, contact):
     """Vertex j, just moved by the response, back onto the contact layer of every
     obstacle it entered (position and velocity, as an impulse of the obstacle: its force
-    is added to ``Control.contact``)."""
+    is added to ``Control.contact``), but those it is released from (placed through it:
+    :func:`.contact.released`)."""
+    free = released(contact, j)
     for k in range(ob.shape[0]):
+        if free & _bit(k):
+            continue
         d, n0, n1, n2 = distance(ob, meta, data, k, x[j, 0], x[j, 1], x[j, 2])
         if d >= th:
             continue

@@ -30,10 +30,11 @@ field             shape / unit      meaning
                                     origin, spacing (:mod:`.contact`)
 ``Control.sdf_data`` (s,) [m]       their samples
 ``Control.contact_params`` (1,)     contact thickness [m]
-``Control.contact`` (n, 9)          written by the step: each vertex's contact force [N]
+``Control.contact`` (n, 11)         written by the step: each vertex's contact force [N]
                                     (3), obstacle row (-1: none), gap to the layer [m],
                                     a second obstacle's part of the force (3) and its row
-                                    (a corner; :mod:`.contact`)
+                                    (a corner), the rows of the obstacles placed through
+                                    it that it is released from (2; :mod:`.contact`)
 ================  ================  ========================================================
 """
 from __future__ import annotations

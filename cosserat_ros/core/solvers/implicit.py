@@ -577,7 +577,8 @@ class ImplicitSolver:
             feq = (mass * (vk - vn * (1.0 - dt * damp / mass)) / dt - control.f_applied
                    - mass * g)
             w2, d2 = contact_list(rest, 0, len(rest), x, v, feq, control, coeff, dt, True)
-            push_list(held, x, control.obstacles, control.sdf_meta, control.sdf_data, th)
+            push_list(held, x, control.obstacles, control.sdf_meta, control.sdf_data, th,
+                      control.contact)
             work += w + w2
             diss += d + d2
         state.acc[0] += work

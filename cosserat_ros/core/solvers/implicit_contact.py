@@ -78,8 +78,8 @@ import math
 import numpy as np
 
 from ..compiled import kernel
-from ..contact import (ALL, C_FORCE, C_FORCE2, C_GAP, C_ID, C_ID2, MU_K, MU_S, SPEED, _far,
-                                       _point_velocity, distance, push_out)
+from ..contact import (ALL, C_FORCE, C_FORCE2, C_GAP, C_ID, C_ID2, MU_K, MU_S, SPEED, _bit,
+                       _far, _point_velocity, _store_released, distance, push_out, released)
 
 __all__ = ['ObstacleConstraints', 'FREE', 'STICK', 'SLIDE', 'ROUNDS', 'ADDS', 'SIN_CORNER',
            'frames', 'push_list', 'warm']
@@ -95,11 +95,15 @@ SIN_CORNER = 0.2
 
 
 @kernel()
-def frames(x, pred, free, dt, ob, meta, data, th, skip, k_out, d_out, n_out, vo_out):
+def frames(x, pred, free, dt, ob, meta, data, th, skip, k_out, d_out, n_out, vo_out,
+           contact):
     """For every free vertex i: of the obstacles whose linearised gap at ``pred[i]``
     (module docstring) is negative, the one where it is the most negative, obstacle
     ``skip[i]`` left out: its row (``k_out``, -1 for none), distance ``d`` [m], normal
-    and velocity at ``x[i]``."""
+    and velocity at ``x[i]``. An obstacle vertex i is released from (its
+    :func:`..contact.released` mask in ``contact``) is left out while ``x[i]`` is
+    inside its layer, and found outside it, releases it no more (as
+    :func:`..contact.resolve` does)."""
     for i in range(x.shape[0]):
         k_out[i] = -1
         if not free[i]:
@@ -112,10 +116,19 @@ def frames(x, pred, free, dt, ob, meta, data, th, skip, k_out, d_out, n_out, vo_
         e2 = pred[i, 2] - x2
         reach = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
         best = 0.0
+        rel = released(contact, i)
         for k in range(ob.shape[0]):
-            if k == skip[i] or _far(ob, k, x0, x1, x2, th + reach + dt * ob[k, SPEED]):
+            if k == skip[i]:
+                continue
+            bit = _bit(k)
+            if _far(ob, k, x0, x1, x2, th + reach + dt * ob[k, SPEED]):
+                rel &= ~bit
                 continue
             d, n0, n1, n2 = distance(ob, meta, data, k, x0, x1, x2)
+            if rel & bit:
+                if d < th:
+                    continue
+                rel &= ~bit
             o0, o1, o2 = _point_velocity(ob, k, x0, x1, x2)
             g = d - th + n0 * (e0 - dt * o0) + n1 * (e1 - dt * o1) + n2 * (e2 - dt * o2)
             if g < best:
@@ -128,15 +141,17 @@ def frames(x, pred, free, dt, ob, meta, data, th, skip, k_out, d_out, n_out, vo_
                 vo_out[i, 0] = o0
                 vo_out[i, 1] = o1
                 vo_out[i, 2] = o2
+        _store_released(contact, i, rel)
 
 
 @kernel()
-def push_list(verts, x, ob, meta, data, th):
-    """:func:`..contact.push_out` for vertices ``verts`` (positions only)."""
+def push_list(verts, x, ob, meta, data, th, contact):
+    """:func:`..contact.push_out` for vertices ``verts`` (positions only; not out of
+    the obstacles each is released from, its mask in ``contact``)."""
     for q in range(verts.shape[0]):
         i = verts[q]
         x[i, 0], x[i, 1], x[i, 2] = push_out(x[i, 0], x[i, 1], x[i, 2], ob, meta, data, th,
-                                            ALL)
+                                            ALL, released(contact, i))
 
 
 class ObstacleConstraints:
@@ -176,7 +191,7 @@ class ObstacleConstraints:
         ``_k.._vo`` scratch arrays."""
         frames(xn, pred, free, dt, control.obstacles, control.sdf_meta, control.sdf_data,
                control.contact_params[0], self._none if skip is None else skip, self._k,
-               self._d, self._n, self._vo)
+               self._d, self._n, self._vo, control.contact)
         return self._k >= 0
 
     def _take(self, sel):
@@ -377,7 +392,8 @@ class ObstacleConstraints:
             if third.any():
                 rest = q[third]
                 t = xk.copy()
-                push_list(rest, t, control.obstacles, control.sdf_meta, control.sdf_data, th)
+                push_list(rest, t, control.obstacles, control.sdf_meta, control.sdf_data, th,
+                          control.contact)
                 self.target[rest] = t[rest]
                 self.vo[rest] = v1[third]
                 self.row2[rest] = -1
@@ -431,4 +447,4 @@ def warm(x, control) -> None:
     c = ObstacleConstraints(n)
     c._find(x, x, np.zeros(n, np.bool_), control, 1e-3)
     push_list(np.zeros(0, np.int64), x, control.obstacles, control.sdf_meta,
-              control.sdf_data, control.contact_params[0])
+              control.sdf_data, control.contact_params[0], control.contact)

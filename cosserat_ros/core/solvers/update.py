@@ -39,7 +39,7 @@ import math
 import numba as nb
 
 from ..compiled import kernel
-from ..contact import ALL, C_WIDTH, NO_CONTACT, near_mask, push_out, resolve
+from ..contact import ALL, C_WIDTH, NO_CONTACT, near_mask, push_out, released, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
@@ -162,8 +162,9 @@ def contact_vertex(i, x, v, force, control, coeff, dt, mask, vmax2, backward):
     d += dt * c * (u0 * (v0 - p0) + u1 * (v1 - p1) + u2 * (v2 - p2))
     if v0 * v0 + v1 * v1 + v2 * v2 > vmax2:
         mask = ALL
+    # not out of the obstacles it is released from (``resolve`` kept their mask)
     x0, x1, x2 = push_out(x0 + dt * v0, x1 + dt * v1, x2 + dt * v2, ob, control.sdf_meta,
-                          control.sdf_data, th, mask)
+                          control.sdf_data, th, mask, released(control.contact, i))
     v[i, 0] = v0
     v[i, 1] = v1
     v[i, 2] = v2
