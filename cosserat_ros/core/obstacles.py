@@ -12,6 +12,13 @@ angular velocity. The step reads a pose per call of the compiled step, so
 at most a quarter of the contact thickness per call (a displacement cap; a vertex in the
 way is pushed back onto the layer by at most that much, and the obstacle's velocity
 already enters every contact's friction and normal response).
+
+Placed through the cloth: an obstacle added, or given a new pose, where vertices of the
+cloth are inside its solid is released from them until they are out of its layer
+(:meth:`ObstacleSet.release`; the physics and why: :mod:`.contact`, "Obstacles placed
+through the cloth"). The masks live in ``Control.contact``, one bit per table row, so
+a change of the set moves them onto the rows the obstacles have after it
+(:meth:`ObstacleSet.remap_released`).
 """
 from __future__ import annotations
 
@@ -46,6 +53,9 @@ FIELD_MAX_SAMPLES = 2_000_000
 #: the most triangle-sample distance tests its construction may make (bounded work: about
 #: a second; a 5,120-triangle sphere of radius 0.2 m at 1 cm makes ~4e6)
 FIELD_MAX_VISITS = 5e7
+#: a vertex within this many contact thicknesses of an obstacle's surface before a new
+#: pose is on it (resting, or about to): the pose carries it (:meth:`ObstacleSet.release`)
+CARRY_THICKNESS = 2.0
 
 
 def _vec(value, name, n=3) -> np.ndarray:
@@ -142,6 +152,7 @@ class ObstacleSet:
         self.data = np.zeros(0)
         self.shapes = (np.zeros((0, FM_WIDTH)), np.zeros((0, 3)), np.zeros((0, 2), np.int64))
         self.ids: list = []              # table row -> obstacle id
+        self._released_ids: list = []    # the rows the release masks were set for
 
     def __len__(self):
         return len(self._items)
@@ -366,6 +377,59 @@ class ObstacleSet:
                 ne += len(e)
         self.shapes = (fmeta, np.concatenate(corners), np.concatenate(edges))
         self.data = np.concatenate(datas) if datas else np.zeros(0)
+
+    # ------------------------------------------------------------------ release
+    def row(self, oid) -> int:
+        """The table row of obstacle ``oid`` (``ValueError`` if there is none)."""
+        return self.ids.index(self._key(oid))
+
+    def distances(self, oid, x) -> np.ndarray:
+        """Signed distances [m] of points ``x`` (m, 3) from obstacle ``oid``'s surface at
+        its pose now (:func:`.contact.distance`; negative inside)."""
+        pts = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, 3)
+        return C.distances(self.table, self.meta, self.data, self.row(oid), pts)[:, 0]
+
+    def release(self, oid, x, masks, th, before=None, held=None) -> np.ndarray:
+        """The vertices' release masks (n,) uint64 with obstacle ``oid``'s bit set anew
+        for the cloth at ``x`` (:mod:`.contact`, "Obstacles placed through the cloth"),
+        after the obstacle was added (``before`` None) or given a new pose (``before``:
+        each vertex's distance from it at its old pose). Set for the vertices inside its
+        solid (d < 0), except those ``held`` (pinned or held: no contact) and, after a
+        new pose, those that were within :data:`CARRY_THICKNESS` th of its surface
+        before (on it or about to be: the pose carries them, the next step puts them
+        back on its layer as a moving obstacle's push would); kept for the vertices
+        released before that are still inside its layer (d < th); cleared for the rest.
+        An obstacle from the 65th table row on has no bit (:data:`.contact.MASK_BITS`):
+        ``masks`` come back unchanged, and every vertex inside it is pushed out."""
+        masks = np.asarray(masks, dtype=np.uint64)
+        row = self.row(oid)
+        if row >= C.MASK_BITS:
+            return masks
+        d = self.distances(oid, x)
+        bit = np.uint64(1) << np.uint64(row)
+        had = (masks & bit) != 0
+        new = d < 0.0
+        if before is not None:
+            new &= ~(np.asarray(before) < CARRY_THICKNESS * th)
+        new |= had & (d < th)
+        if held is not None:
+            new &= ~np.asarray(held, dtype=bool)
+        return np.where(new, masks | bit, masks & ~bit)
+
+    def remap_released(self, masks) -> np.ndarray:
+        """Release masks (n,) uint64 set for the rows of the table of the last call (of
+        the set's start) moved onto the rows of the table now: an obstacle keeps its
+        vertices' bits wherever its row went, a removed one's are dropped."""
+        old, self._released_ids = self._released_ids, list(self.ids)
+        masks = np.asarray(masks, dtype=np.uint64)
+        if old == self.ids or not masks.any():
+            return masks
+        out = np.zeros_like(masks)
+        for r, oid in enumerate(old[:C.MASK_BITS]):
+            if oid in self.ids and self.ids.index(oid) < C.MASK_BITS:
+                has = (masks >> np.uint64(r)) & np.uint64(1)
+                out |= has << np.uint64(self.ids.index(oid))
+        return out
 
     # ------------------------------------------------------------------ motion
     def moving(self) -> bool:

@@ -169,8 +169,12 @@ class ClothSimulator:
 
     def set_positions(self, x) -> None:
         """Set positions (n, 3) [m]; pinned vertices move too (to script a grasp), and a
-        handle holds its vertices where they are now (their offsets from it taken again)."""
-        self.state.x[:] = self._checked_state(x, 'positions')
+        handle holds its vertices where they are now (their offsets from it taken again).
+        A vertex moved is released from no obstacle any more (placed anew: inside one,
+        it is pushed out; :mod:`.contact`, "Obstacles placed through the cloth")."""
+        x = self._checked_state(x, 'positions')
+        self.control.contact[np.any(x != self.state.x, axis=1), C.C_FREE:C.C_FREE + 2] = 0.0
+        self.state.x[:] = x
         self._handles.rebase(self.state.x)      # held vertices: their new offsets
         self.solver.forget()
 
@@ -625,9 +629,13 @@ class ClothSimulator:
         ``friction``: mu, or (mu_static, mu_kinetic) with kinetic <= static (default 0.5
         both). ``name``: unique, default ``<shape>_<id>``. Raises ``ValueError`` with the
         reason for a bad shape or geometry. Physics: :mod:`cosserat_ros.core.contact`.
+        An obstacle added through the cloth is released from the vertices inside it
+        until they are out of its contact layer (:mod:`.contact`, "Obstacles placed
+        through the cloth").
         """
         oid = self._obstacles.add(shape, friction=friction, name=name, **geometry)
         self._sync_obstacles(changed_set=True)
+        self._release(oid)
         return oid
 
     def set_obstacle_pose(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
@@ -635,10 +643,15 @@ class ClothSimulator:
                           angular_velocity=(0.0, 0.0, 0.0)) -> None:
         """Place obstacle ``id`` at ``position`` [m] with ``orientation`` (quaternion x, y,
         z, w; for a plane, the rotation of its normal from +z) and let it move on with
-        the given velocities [m/s, rad/s, world frame] until the next call."""
+        the given velocities [m/s, rad/s, world frame] until the next call. The new pose
+        carries the vertices that were within 2 contact thicknesses of it; the others
+        it is placed through are released from it until they are out of its contact
+        layer (:mod:`.contact`, "Obstacles placed through the cloth")."""
+        before = self._obstacles.distances(id, self.state.x)
         self._obstacles.set_pose(id, position, orientation, linear_velocity,
                                  angular_velocity)
         self._sync_obstacles()
+        self._release(id, before)
 
     def remove_obstacle(self, id) -> None:
         """Remove obstacle ``id`` (``ValueError`` if there is none)."""
@@ -683,15 +696,17 @@ class ClothSimulator:
         ``deepest`` [m] (how far the deepest vertex was inside the contact layer at the
         start of its step, >= 0), ``feature_pairs`` (candidate pairs of the corners and
         edges of boxes and cylinders with the cloth's triangles and edges,
-        :mod:`.features`) and
-        ``feature_active`` (those the last step's response moved)."""
+        :mod:`.features`),
+        ``feature_active`` (those the last step's response moved) and ``released``
+        (vertices an obstacle placed through them does not act on yet, :mod:`.contact`)."""
         c = self.control.contact
         active = c[:, C.C_ID] >= 0
         gap = c[:, C.C_GAP]
         deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
         return {'contacts': int(active.sum()), 'deepest': deepest,
                 'feature_pairs': int(self._features.pairs),
-                'feature_active': int(self._features.acted)}
+                'feature_active': int(self._features.acted),
+                'released': int(np.count_nonzero(C.released_rows(c)))}
 
     @property
     def contact_thickness(self) -> float:
@@ -753,8 +768,20 @@ class ClothSimulator:
         o = self._obstacles
         self.control = self.control.with_obstacles(o.table, o.meta, o.data)
         self._features.set_shapes(*o.shapes)
+        # the release masks follow their obstacles' rows (:mod:`.obstacles`)
+        masks = o.remap_released(C.released_rows(self.control.contact))
         if changed_set or not len(o):
             self._clear_contacts()
+        C.store_released_rows(self.control.contact, masks)
+
+    def _release(self, oid, before=None) -> None:
+        """Obstacle ``oid``'s release of the vertices it was just placed through
+        (:meth:`.obstacles.ObstacleSet.release`; ``before``: their distances from it at
+        its old pose)."""
+        c = self.control.contact
+        C.store_released_rows(c, self._obstacles.release(
+            oid, self.state.x, C.released_rows(c), self.contact_thickness, before,
+            self.control.pinned))
 
     def _clear_contacts(self) -> None:
         """Forget the last step's contact output: each vertex's contact row (force, none)
