@@ -993,20 +993,46 @@ def test_observe_only_node_takes_no_commands():
         harness.close()
 
 
-def test_a_paused_node_publishes_on_change_and_once_a_second(h):
+def test_a_paused_node_publishes_on_change_and_once_a_second(h, monkeypatch):
+    """Paused, the timer ticks every PAUSED_TICK and the state goes out once a second
+    (not at the tick rate) and at the first tick after a change; running, every tick
+    publishes again. Counted in the node's ticks and publishes, and the paused ones'
+    spacing as a lower bound on wall time: a busy host can only stretch it."""
+    ticks, published = [0], []           # published: (tick count, wall time) of each
+    tick = h.node.timer.callback
+
+    def counted_tick():
+        ticks[0] += 1
+        return tick()
+    h.node.timer.callback = counted_tick
+    publish = h.node.publish_state
+
+    def counted_publish():
+        published.append((ticks[0], time.monotonic()))
+        return publish()
+    monkeypatch.setattr(h.node, 'publish_state', counted_publish)
     h.pause(True)
-    h.spin(0.3)
+    assert h.spin_until(lambda: h.node.timer.timer_period_ns
+                        == int(node_module.PAUSED_TICK * 1e9), 10)
+    published.clear()                    # (the pause's own publish is behind)
+    assert h.spin_until(lambda: len(published) >= 2, 10)
+    (_, t0), (_, t1) = published[:2]
+    assert t1 - t0 >= node_module.PAUSED_PUBLISH_PERIOD, published     # not 50 Hz
+    # a change goes out at the next tick (the once-a-second publish put out of the way)
+    monkeypatch.setattr(node_module, 'PAUSED_PUBLISH_PERIOD', 1e9)
+    published.clear()
     h.meshes.clear()
-    h.spin(2.1)
-    assert 1 <= len(h.meshes) <= 4, len(h.meshes)            # not 50 Hz
-    assert h.node.timer.timer_period_ns == int(node_module.PAUSED_TICK * 1e9)
-    h.meshes.clear()
+    n = ticks[0]
     h.node.set_parameters([Parameter('coloring', value='speed')])
-    assert h.spin_until(lambda: h.meshes, node_module.PAUSED_TICK + 0.3)
+    assert h.spin_until(lambda: published and h.meshes, 10)
+    assert published[0][0] == n + 1, (n, published)
     h.pause(False)
+    published.clear()
     h.meshes.clear()
-    h.spin(0.5)
-    assert len(h.meshes) >= 10                                # running: every tick again
+    n = ticks[0]
+    assert h.spin_until(lambda: ticks[0] >= n + 10 and len(h.meshes) >= 10, 10)
+    assert h.node.timer.timer_period_ns == int(round(h.node.period * 1e9))
+    assert [k for k, _ in published] == list(range(n + 1, ticks[0] + 1))  # every tick
 
 
 def test_points_and_shape_are_published_when_asked():
