@@ -29,6 +29,7 @@ import math
 from typing import Dict, Optional
 import warnings
 
+import numba
 import numpy as np
 
 from . import energy as _energy
@@ -40,6 +41,7 @@ from .material import Material, material_tensor
 from .mesh import ClothMesh
 from .model import Model
 from .handles import HandleSet
+from .threads import ThreadTuner, run_tuned
 from .obstacles import ObstacleSet
 from .features import FeatureContact
 from .self_contact import DEFAULT_FRICTION, SelfCollision
@@ -130,6 +132,8 @@ class ClothSimulator:
         if solver == 'implicit':
             self.solver = ImplicitSolver(self.model, self.solver)
         self._solver_kind = solver
+        self._threads = 'auto'
+        self._tuner: Optional[ThreadTuner] = None
         n = mesh.n_vertices
         self.state = State.at_rest(mesh.vertices)
         self.control = Control.empty(n, faces=mesh.n_faces)
@@ -445,8 +449,7 @@ class ClothSimulator:
         boxes = self._features.present(self.control)   # their calls: _step_in_calls
         try:
             if cap == 0 and not len(self._handles) and not boxes and not self._self_on:
-                done = self.solver.step(n, self.state, self.control, self.coefficients,
-                                        self._dt, self._vmax ** 2)
+                done = self._solve(n)
             else:
                 done = self._step_in_calls(n, cap)
         except BaseException:
@@ -468,6 +471,41 @@ class ClothSimulator:
                                      hint)
         self._steps += n
         self._time += n * self._dt
+
+    @property
+    def threads(self):
+        """The threads the compiled step runs on: ``'auto'`` (default) all of numba's
+        (``numba.get_num_threads()`` of the calling thread) or one, whichever it measures
+        faster, measured again as the machine's load changes (:mod:`.threads`: on a busy
+        machine the parallel step's threads wait for each other); or an int, that many
+        (at most numba's). The trajectory is the same to the bit either way."""
+        return self._threads
+
+    @threads.setter
+    def threads(self, value):
+        if value != 'auto' and (isinstance(value, bool) or not isinstance(value, int)
+                                or not 1 <= value <= numba.config.NUMBA_NUM_THREADS):
+            raise ValueError(f"threads must be 'auto' or an int in [1, "
+                             f"{numba.config.NUMBA_NUM_THREADS}], got {value!r}")
+        self._threads = value
+
+    def _solve(self, k: int) -> int:
+        """The solver's ``k`` steps on the thread count :attr:`threads` says; the steps
+        done (fewer: the next one went bad)."""
+        def run(m):
+            return self.solver.step(m, self.state, self.control, self.coefficients,
+                                    self._dt, self._vmax ** 2)
+        if self._threads == 'auto':
+            most = numba.get_num_threads()
+            if self._tuner is None or self._tuner.most != most:
+                self._tuner = ThreadTuner(most)
+            return run_tuned(self._tuner, run, k)
+        was = numba.get_num_threads()
+        numba.set_num_threads(self._threads)
+        try:
+            return run(k)
+        finally:
+            numba.set_num_threads(was)
 
     def _step_in_calls(self, n: int, cap: int) -> int:
         """``n`` steps as several calls of the compiled step: moving obstacles take a
@@ -511,8 +549,7 @@ class ClothSimulator:
             if len(self._handles):
                 k = self._handles.plan(t, self._dt, k)
             self._handles.prescribe(self.state.x, t, self._dt, k, self.control.pin_velocity)
-            got = self.solver.step(k, self.state, self.control, self.coefficients,
-                                   self._dt, self._vmax ** 2)
+            got = self._solve(k)
             if (got == k and boxes and not near
                     and self._features.overran(start.x, self.state.x, self.control,
                                                self._dt, k)):
