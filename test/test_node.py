@@ -617,6 +617,32 @@ def test_sim_time_keeps_wall_time_over_many_ticks(monkeypatch):
     assert abs(sum(steps) * dt - 300 * pacer.period) <= dt
 
 
+@pytest.mark.parametrize('factor, dt', [(0.2, 1.5e-4), (2.5, 1.5e-4), (1.0, 0.1),
+                                        (0.01, 2e-3)])
+def test_sim_time_keeps_the_real_time_factor_asked_for(monkeypatch, factor, dt):
+    """With ``factor`` sim seconds asked per wall second (the node's real_time_factor),
+    the sim advances factor x the wall time within a step, also when a step is longer
+    than the period (dt = 0.1 s at 50 Hz: a step every 5 ticks, where taking at least one
+    per tick would run 5x real time) or a factor makes a tick's share of a step small.
+    Regular ticks on a fake clock."""
+    clock = _FakeClock()
+    monkeypatch.setattr(pacing, 'time', clock)
+    steps = []
+
+    def step(n):
+        clock.t += n * 1e-7
+        steps.append(n)
+        return True
+    pacer = pacing.Pacer(1 / 50, factor)
+    start = clock.t
+    for k in range(300):
+        now = start + k * pacer.period
+        clock.t = now
+        wanted = pacer.wanted(now, dt)
+        pacer.carry(pacer.advance(step, wanted, pacer.period), wanted, dt, now)
+    assert abs(sum(steps) * dt - factor * 300 * pacer.period) <= dt
+
+
 def _run_ticks(monkeypatch, step_cost, hiccup_every, ticks=300, dt=3.2e-4):
     """The node's loop on a fake clock: a 30 Hz timer (a tick that ends late starts the
     next at once), ``step_cost`` [s] per step, a publish of 2 ms and, every

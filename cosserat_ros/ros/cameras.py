@@ -117,7 +117,7 @@ class CameraStreams:
         try:
             p, q = commands.handle_target(msg, self.node.frame_id)
         except commands.CommandError as exc:
-            self.node._reject('cameras', f'cameras/{name}/pose: {exc}')
+            self.node._reject('cameras', f'cameras/{name}/pose: {exc}', f'cameras/{name}/pose')
             return
         s = self.streams[name]
         s['camera'].set_pose(p, q)

@@ -25,7 +25,7 @@ from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import Marker, MarkerArray
 
 __all__ = ['clock', 'wrench', 'pose', 'obstacle_markers', 'mesh_triangle_points', 'status',
-           'energy_status', 'OBSTACLE_COLOR', 'PLANE_SIZE', 'PLANE_THICKNESS']
+           'rejection', 'energy_status', 'OBSTACLE_COLOR', 'PLANE_SIZE', 'PLANE_THICKNESS']
 
 #: RGBA of every obstacle marker
 OBSTACLE_COLOR = (0.6, 0.6, 0.6, 0.8)
@@ -151,6 +151,21 @@ def status(stamp_ns: int, frame_id: str, name: str, level: bytes, message: str,
                  for k, v in values.items()]
     arr.status = [st]
     return arr
+
+
+def rejection(topic: str, reason: str, sim_time: float, values: Dict[str, object],
+              hardware_id: str) -> DiagnosticStatus:
+    """A refused input, as the node's ``~/rejections`` carries it: a WARN
+    ``DiagnosticStatus`` named after the input's topic or service (``topic``), the
+    ``reason`` as its message, and as values ``sim_time`` [s] (when it was refused) then
+    the offending ``values`` (floats as their ``repr``, the rest as ``str``)."""
+    st = DiagnosticStatus(level=DiagnosticStatus.WARN, name=topic, message=reason,
+                          hardware_id=hardware_id)
+    vals: Dict[str, object] = {'sim_time': float(sim_time)}
+    vals.update(values)
+    st.values = [KeyValue(key=k, value=repr(v) if isinstance(v, float) else str(v))
+                 for k, v in vals.items()]
+    return st
 
 
 def energy_status(stamp_ns: int, frame_id: str, energy: Dict[str, float], sim_time: float,

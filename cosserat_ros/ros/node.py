@@ -27,6 +27,8 @@ name                     type                                   direction
 ``~/handles/<n>/target`` geometry_msgs/PoseStamped              in: handle <n>'s pose
 ``~/handles/<n>/grasp``  std_srvs/SetBool                       service: grab / release
 ``~/handles/<n>/wrench`` geometry_msgs/WrenchStamped            out, every tick
+``~/rejections``         diagnostic_msgs/DiagnosticStatus       out: each refused input,
+                                                                its topic and reason
 ``~/reset``              std_srvs/Trigger                       service
 ``~/pause``              std_srvs/SetBool                       service
 =======================  =====================================  ============================
@@ -49,7 +51,6 @@ import time
 import traceback
 from typing import Dict, List, Optional, Tuple
 
-import numba
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -70,13 +71,13 @@ from visualization_msgs.msg import MarkerArray
 from ..core import warmup
 from ..core.air import Air
 from ..core.contact import mesh_distance_field
-from ..core.handles import turn_angle
+from ..core.handles import MAX_WAYPOINTS, turn_angle
 from ..core.simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
 from . import commands, messages, scene
 from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
                           percentile, point_cloud, shape_mesh, vertex_colors)
 from .cameras import CameraStreams, camera_specs
-from .pacing import Pacer, ThreadTuner
+from .pacing import Pacer
 from .params import (AIR_KEYS, CAMERA_KEYS, check_choice, check_dt, COLORINGS, ConfigError,
                      HANDLE_KEYS, MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
                      PARAMETERS, params_files, pin_set,
@@ -93,6 +94,10 @@ MAX_OBSTACLE_BYTES = 24 * 30_000 + 64 * 512
 #: this often, not every tick, and the timer ticks every PAUSED_TICK: a paused node idles
 PAUSED_PUBLISH_PERIOD = 1.0
 PAUSED_TICK = 0.2
+
+#: the most refusals published on ~/rejections between two ticks (the rest are counted
+#: in /diagnostics and logged, throttled): a flood of bad input costs bounded work
+MAX_REJECTIONS_PER_TICK = 20
 
 #: [s] wall time between two distance-field builds for mesh markers on ~/obstacles (each
 #: costs up to ~1 s of the callback thread: commands.MAX_MESH_POINTS, obstacles.py)
@@ -142,6 +147,11 @@ class _Force:
     indices: np.ndarray
     forces: np.ndarray
     received: float
+
+
+def _vector_values(v) -> Dict[str, object]:
+    """A Vector3's components as the offending values of a rejection."""
+    return {'x': float(v.x), 'y': float(v.y), 'z': float(v.z)}
 
 
 class ClothNode(Node):
@@ -215,8 +225,7 @@ class ClothNode(Node):
         self.paused = False
         self.diverged: Optional[str] = None
         self.period = 1.0 / p['publish_rate']
-        self.pacer = Pacer(self.period)
-        self.threads = ThreadTuner(numba.get_num_threads())
+        self.pacer = Pacer(self.period, p['real_time_factor'])
         self._dirty = True                 # something to publish while paused
         self._last_publish = -math.inf
         self._rtf = 1.0
@@ -229,6 +238,9 @@ class ClothNode(Node):
         self.mesh_pub = self.create_publisher(MarkerArray, '~/mesh', reliable)
         self.energy_pub = self.create_publisher(DiagnosticArray, '~/energy', reliable)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
+        self.rejections_pub = self.create_publisher(DiagnosticStatus, '~/rejections',
+                                                    QoSProfile(depth=50))
+        self._rejections_sent = 0            # since the last tick
         self.points_pub = (self.create_publisher(PointCloud2, '~/points', reliable)
                            if p['publish.points'] else None)
         self.shape_pub = (self.create_publisher(Mesh, '~/shape', reliable)
@@ -415,45 +427,76 @@ class ClothNode(Node):
                  'wrench': self.create_publisher(WrenchStamped, f'~/handles/{name}/wrench',
                                                  qos)}
             if not self.observe_only:
+                # deep: a controller may stream a whole trajectory of stamped targets
+                # at once (MAX_WAYPOINTS ahead), which a last-10 reader would cut
                 self.create_subscription(PoseStamped, f'~/handles/{name}/target',
                                          lambda msg, n=name: self.on_handle_target(n, msg),
-                                         10)
+                                         MAX_WAYPOINTS)
                 self.create_service(SetBool, f'~/handles/{name}/grasp',
                                     lambda req, res, n=name: self.on_grasp(n, req, res))
             out[name] = h
         return out
 
     def on_handle_target(self, name: str, msg: PoseStamped):
-        """A pose for handle ``name``: moves it there if it holds the cloth (reached over
-        the sim time since the previous target, at least one tick), else places it.
+        """A pose for handle ``name``: places it if it holds nothing; if it holds the
+        cloth, moves it there: with a header stamp of zero over the sim time since the
+        previous target (at least a tick, at most 1 s), starting from where the handle is;
+        with a stamp T, a sim time ahead of the node's, arriving at T after the targets
+        already given before T (a trajectory streamed ahead; a stamp not ahead is
+        refused as late).
 
-        A held handle's speed is measured from where it is now (not from the last target:
-        many targets in one tick, or while paused, would each be one short hop and add up
-        to a jump), its turn counted at the grasp radius: ``(|p - p_now| + theta r) /
-        duration`` must not exceed ``handles.max_speed``."""
+        The speed is checked from where the motion starts (the handle now, or the
+        waypoint before T), its turn counted at the grasp radius: ``(|p - p_from| + theta
+        r) / (t - t_from)`` must not exceed ``handles.max_speed``. From where the handle
+        is, not from the last target: many targets in one tick, or while paused, would
+        each be one short hop and add up to a jump."""
         h = self._handles[name]
+        topic = f'handles/{name}/target'
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        now = self.sim.time
+        offending: Dict[str, object] = {'stamp': float(stamp)}
         try:
             p, q = commands.handle_target(msg, self.frame_id)
-            now = self.sim.time
+            offending.update(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+            held = h['id'] is not None and h['id'] in self.sim.handles
             duration = self.period
             if h['target'] is not None:
                 duration = min(max(now - h['received'], self.period), 1.0)
-            if h['id'] is not None and h['id'] in self.sim.handles:
+            if held and stamp > 0:
+                if stamp <= now:
+                    raise commands.CommandError(
+                        f'stamped {stamp:.4f} s, not ahead of the simulation time '
+                        f'{now:.4f} s ({now - stamp:.4f} s late): a stamped target says '
+                        'when to be there')
+                after = [w for w in self.sim.handle_waypoints(h['id']) if w[0] < stamp]
+                t_from, p_from, q_from = after[-1]
+                interval = stamp - t_from
+            elif held:
                 d = self.sim.handles[h['id']]
-                theta = turn_angle(np.asarray(d['orientation']), q)
-                speed = (float(np.linalg.norm(p - np.asarray(d['position'])))
-                         + theta * h['radius']) / duration
+                t_from, p_from, q_from = now, np.asarray(d['position']), d['orientation']
+                interval = duration
+            if held:
+                theta = turn_angle(np.asarray(q_from), q)
+                speed = (float(np.linalg.norm(p - np.asarray(p_from)))
+                         + theta * h['radius']) / interval
+                offending['speed'] = speed
                 if speed > self._max_handle_speed:
                     raise commands.CommandError(
-                        f'target {speed:.3g} m/s from where the handle is (its turn at the '
-                        f'grasp radius included), above handles.max_speed '
-                        f'{self._max_handle_speed:.3g}')
+                        f'target {speed:.3g} m/s from where the handle is '
+                        f'{"at " + format(t_from, ".4f") + " s " if stamp > 0 else ""}'
+                        f'(its turn at the grasp radius included), above '
+                        f'handles.max_speed {self._max_handle_speed:.3g}')
+                if stamp > 0:
+                    try:
+                        self.sim.move_handle(h['id'], p, q, at=stamp)
+                    except ValueError as exc:             # too many waypoints ahead
+                        raise commands.CommandError(str(exc)) from None
+                else:
+                    self.sim.move_handle(h['id'], p, q, duration=duration)
         except commands.CommandError as exc:
-            self._reject('handles', f'{name}: {exc}')
+            self._reject('handles', f'{name}: {exc}', topic, offending)
             return
         h['target'], h['received'] = (p, q), now
-        if h['id'] is not None:
-            self.sim.move_handle(h['id'], p, q, duration=duration)
         self._dirty = True
 
     def on_grasp(self, name: str, request, response):
@@ -616,11 +659,22 @@ class ClothNode(Node):
             pub.publish(messages.wrench(stamp, self.frame_id, f, t))
 
     # ------------------------------------------------------------------ commands
-    def _reject(self, topic: str, reason: str):
-        self.rejected[topic] += 1
+    def _reject(self, counter: str, reason: str, topic: Optional[str] = None,
+                values: Optional[Dict[str, object]] = None):
+        """Refuse an input: count it under ``counter`` (/diagnostics), log it (throttled)
+        and publish it on ``~/rejections`` (:func:`.messages.rejection`; at most
+        :data:`MAX_REJECTIONS_PER_TICK` between two ticks) named ``<node>/<topic>``
+        (default: the counter's topic) with ``values``, the offending values."""
+        self.rejected[counter] += 1
+        topic = counter if topic is None else topic
         self.get_logger().warning(f'rejected ~/{topic}: {reason} '
-                                  f'({self.rejected[topic]} rejected so far)',
+                                  f'({self.rejected[counter]} rejected so far)',
                                   throttle_duration_sec=1.0)
+        if self._rejections_sent < MAX_REJECTIONS_PER_TICK:
+            self._rejections_sent += 1
+            self.rejections_pub.publish(messages.rejection(
+                f'{self.get_fully_qualified_name()}/{topic}', reason, self.sim.time,
+                values or {}, self.get_fully_qualified_name()))
 
     def on_vertex_forces(self, msg: Float64MultiArray):
         """Rows [index, fx, fy, fz] [N]; replaces the previous set (empty: clear)."""
@@ -631,7 +685,7 @@ class ClothNode(Node):
         except commands.CommandError as exc:
             self._reject('vertex_forces', str(exc))
             return
-        self._forces['vertex'] = _Force(idx, f, time.monotonic())
+        self._forces['vertex'] = _Force(idx, f, self.sim.time)
         self._push_forces()
 
     def _check_totals(self, other: str, idx: np.ndarray, f: np.ndarray):
@@ -653,7 +707,7 @@ class ClothNode(Node):
         except commands.CommandError as exc:
             self._reject('point_forces', str(exc))
             return
-        self._forces['point'] = _Force(idx, f, time.monotonic())
+        self._forces['point'] = _Force(idx, f, self.sim.time)
         self._push_forces()
 
     def on_force_field(self, msg: Vector3Stamped):
@@ -661,9 +715,9 @@ class ClothNode(Node):
         try:
             v = commands.force_field(msg, self.frame_id, self._max_acc)
         except commands.CommandError as exc:
-            self._reject('force_field', str(exc))
+            self._reject('force_field', str(exc), values=_vector_values(msg.vector))
             return
-        self._field = (v, time.monotonic())
+        self._field = (v, self.sim.time)
         self.sim.force_field = v
 
     def on_wind(self, msg: Vector3Stamped):
@@ -675,9 +729,9 @@ class ClothNode(Node):
                                             'in air')
             v = commands.wind(msg, self.frame_id, self._max_wind)
         except commands.CommandError as exc:
-            self._reject('wind', str(exc))
+            self._reject('wind', str(exc), values=_vector_values(msg.vector))
             return
-        self._wind = (v, time.monotonic())
+        self._wind = (v, self.sim.time)
         self.sim.wind = v
 
     def _initial_material(self, p: dict) -> Material:
@@ -733,12 +787,15 @@ class ClothNode(Node):
             self.sim.clear_vertex_forces()
 
     def _expire_forces(self, now: float):
+        """At sim time ``now`` [s]: the commands not renewed for ``force_timeout`` s of
+        sim time lapse (a node slower than real time gives a client that paces on /clock
+        the same time to renew them as one at full speed)."""
         if self._force_timeout <= 0:
             return
         described = self.sim.obstacles if self._marker_seen else {}
         for oid, (t0, p0, q0, key) in self._marker_seen.items():
             d = described.get(oid)
-            if (d is not None and self.sim.time - t0 > self._force_timeout
+            if (d is not None and now - t0 > self._force_timeout
                     and any(d['linear_velocity'] + d['angular_velocity'])):
                 self.sim.set_obstacle_pose(oid, d['position'], d['orientation'])
         changed = False
@@ -747,7 +804,7 @@ class ClothNode(Node):
                 self._forces[key] = None
                 changed = True
                 self.get_logger().info(f'{key} forces lapsed after {self._force_timeout} s '
-                                       'without a new message')
+                                       'of sim time without a new message')
         if changed:
             self._push_forces()
         if self._field is not None and now - self._field[1] > self._force_timeout:
@@ -771,6 +828,14 @@ class ClothNode(Node):
         self.sim.reset()
         for h in self._handles.values():
             h['id'] = None
+            h['received'] = 0.0
+        # standing commands lapse force_timeout of sim time from now on
+        self._forces = {k: f if f is None else _Force(f.indices, f.forces, 0.0)
+                        for k, f in self._forces.items()}
+        if self._field is not None:
+            self._field = (self._field[0], 0.0)
+        if self._wind is not None:
+            self._wind = (self._wind[0], 0.0)
         # the markers' obstacles stop where they are, their streams restart at t = 0
         # (their velocity came from poses stamped before the reset, and their lapse
         # after force_timeout compares sim times)
@@ -926,6 +991,8 @@ class ClothNode(Node):
                 self._max_acc = val
             elif name == 'status_period':
                 self._status_period = val
+            elif name == 'real_time_factor':
+                self.pacer.factor = val
             elif name == 'contact.thickness':
                 self.sim.contact_thickness = val
             elif name == 'contact.self':
@@ -951,17 +1018,14 @@ class ClothNode(Node):
         """Advance as many steps as keep sim time with wall time (:mod:`.pacing`), then
         publish."""
         now = time.monotonic()
+        self._rejections_sent = 0
         if self.live is not None:
             self.live.serve()
-        self._expire_forces(now)
+        self._expire_forces(self.sim.time)
         if not self.paused and self.diverged is None:
             wanted = self.pacer.wanted(now, self.sim.dt)
             due = self.timer.time_until_next_call()
-            threads = self.threads.threads(now)
-            numba.set_num_threads(threads)
-            t0 = time.perf_counter()
             done = self.pacer.advance(self._step, wanted, None if due is None else due * 1e-9)
-            self.threads.record(threads, done, time.perf_counter() - t0)
             self.pacer.carry(done, wanted, self.sim.dt, now)
             self._window[1] += done * self.sim.dt
         else:
@@ -1092,14 +1156,17 @@ class ClothNode(Node):
         rej = sum(self.rejected.values())
         if self.diverged:
             level, msg = DiagnosticStatus.ERROR, 'diverged: ' + self.diverged
-        elif self.pacer.lagging or (not self.paused and self._rtf < 0.9):
-            level, msg = DiagnosticStatus.WARN, (f'cannot keep real time (RTF '
-                                                 f'{self._rtf:.2f})')
+        elif self.pacer.lagging or (not self.paused
+                                    and self._rtf < 0.9 * self.pacer.factor):
+            level, msg = DiagnosticStatus.WARN, (
+                f'cannot keep the real-time factor asked for (RTF {self._rtf:.2f} of '
+                f'{self.pacer.factor:g})')
         elif self.paused:
             level, msg = DiagnosticStatus.WARN, 'paused'
         else:
             level, msg = DiagnosticStatus.OK, 'running'
         vals = {'real_time_factor': float(self._rtf),
+                'real_time_factor_asked': float(self.pacer.factor),
                 'step_cost_ms': float(self.pacer.step_cost * 1e3),
                 'publish_cost_ms': float(self.pacer.publish_cost * 1e3),
                 'dt': float(self.sim.dt), 'critical_dt': float(crit),

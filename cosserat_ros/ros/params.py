@@ -101,10 +101,15 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                      'relative to the larger of the step start residual '
                                      'and the vertex load (weight, applied force)',
                                      fp=_fp(1e-12, 0.5))),
+    'real_time_factor': (1.0, _desc('Simulation seconds the node aims to advance per wall '
+                                    'second (1: real time); it runs slower when the host '
+                                    'cannot keep up. Clients that pace on /clock give the '
+                                    'same result at any factor', fp=_fp(1e-3, 100.0))),
     'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
     'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
-    'force_timeout': (1.0, _desc('Forces lapse after this many seconds without a new '
-                                 'message (0 = hold) [s]', fp=_fp(0.0, 1e6))),
+    'force_timeout': (1.0, _desc('Forces, force field and wind lapse after this many '
+                                 'seconds of simulation time without a new message (0 = '
+                                 'hold) [s]', fp=_fp(0.0, 1e6))),
     'max_force': (10.0, _desc('Largest force on one vertex [N]: per row, and summed over '
                               'the rows and topics that load the vertex', fp=_fp(0.0, 1e9))),
     'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
