@@ -50,7 +50,10 @@ PARAMS = f"""cloth_node:
     gravity: [0.0, 0.0, -9.81]
     pinned: {{sets: [top_corners]}}
     force_timeout: 0.0
+    status_period: 0.0
 """
+# status_period 0: no log line a second into the stdout/stderr pipes the tests read only
+# at the end; on a slow host a long test would fill a pipe and block the node's writes
 
 
 def test_installed_config_files_are_shipped():
@@ -473,39 +476,3 @@ def test_ctrl_c_inside_a_c_librarys_callback_ends_without_a_traceback(tmp_path):
     assert 'Traceback' not in proc.stderr + proc.stdout, proc.stderr
     assert 'Exception ignored' not in proc.stderr
     assert proc.returncode == 0, proc.stderr
-
-
-def test_fold_demo_folds_the_cloth_through_the_ros_interfaces():
-    # the shipped demo end to end: config/fold.yaml in one process, fold_demo (grasp,
-    # a pose stream, release, and its own check of the fold from ~/points) in another
-    share = get_package_share_directory('cosserat_ros')
-    proc = start(os.path.join(share, 'config', 'fold.yaml'))
-    try:
-        demo = subprocess.run(ros2_run('cosserat_ros', 'fold_demo'), capture_output=True,
-                              text=True, timeout=180)
-        assert demo.returncode == 0, demo.stdout + demo.stderr
-        assert '100% of the grasped edge' in demo.stdout and 'folded' in demo.stdout
-        assert demo.stdout.count('holds') == 2
-    finally:
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
-    assert proc.returncode == 0, err
-    assert 'Traceback' not in err + out
-
-
-def test_flag_demo_flies_the_flag_in_gusts_through_the_wind_topic():
-    # config/flag.yaml (air on, a steady 6 m/s wind) in one process, flag_demo streaming
-    # gusts on ~/wind and judging the flight from ~/points in another
-    share = get_package_share_directory('cosserat_ros')
-    proc = start(os.path.join(share, 'config', 'flag.yaml'))
-    try:
-        demo = subprocess.run(ros2_run('cosserat_ros', 'flag_demo', '--duration', '3'),
-                              capture_output=True, text=True, timeout=180)
-        assert demo.returncode == 0, demo.stdout + demo.stderr
-        assert 'flew' in demo.stdout and 'NOT' not in demo.stdout
-    finally:
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
-    assert proc.returncode == 0, err
-    assert 'Traceback' not in err + out
-    assert 'rejected' not in err                  # every gust was accepted

@@ -1,9 +1,13 @@
-"""What the demos (``fold_demo``, ``flag_demo``) share: a peer node that parses its command
-line past the ROS arguments, follows the cloth through ``~/points`` and keeps simulation
-time from their stamps.
+"""What the demos (``fold_demo``, ``flag_demo``) share: a peer node on simulation time
+that parses its command line past the ROS arguments, follows the cloth through
+``~/points`` and watches the node's ``~/rejections``.
 
 A demo is a separate process that talks to ``cloth_node`` through its topics and services
-only, as a user's robot code would; nothing here imports the simulator.
+only, as a user's robot code would; nothing here imports the simulator. It paces on
+simulation time: its node has ``use_sim_time`` true, so its clock is the node's ``/clock``,
+and every wait and every stamp is in simulation seconds, which gives the same motion at
+any real-time factor (a busy host, or the node's ``real_time_factor``). Wall-clock limits
+are safety nets only: ``--wait`` for the node to appear, ``--timeout`` for the whole run.
 """
 from __future__ import annotations
 
@@ -13,15 +17,26 @@ import time
 
 import numpy as np
 
-__all__ = ['DemoPeer', 'parser', 'parse']
+__all__ = ['DemoPeer', 'Refused', 'parser', 'parse']
+
+
+class Refused(RuntimeError):
+    """The node refused one of the demo's commands (its ``~/rejections``), or its
+    simulation diverged (its ``~/energy``); the message names the input and the node's
+    reason."""
 
 
 def parser(prog: str, doc: str) -> argparse.ArgumentParser:
-    """The demos' command line: ``--node`` (whose topics, default cloth_node) and
-    ``--wait`` (seconds to wait for it); the demo adds its own."""
+    """The demos' command line: ``--node`` (whose topics, default cloth_node), ``--wait``
+    (wall seconds to wait for it) and ``--timeout`` (wall seconds for the whole run); the
+    demo adds its own."""
     ap = argparse.ArgumentParser(prog=prog, description=doc.split('\n')[0])
     ap.add_argument('--node', default='cloth_node')
-    ap.add_argument('--wait', type=float, default=120.0, help='seconds to wait for the node')
+    ap.add_argument('--wait', type=float, default=120.0,
+                    help='wall-clock seconds to wait for the node to appear')
+    ap.add_argument('--timeout', type=float, default=1800.0,
+                    help='wall-clock seconds the run may take at most, a safety net (the '
+                         'demo itself runs on simulation time)')
     return ap
 
 
@@ -34,45 +49,57 @@ def parse(ap: argparse.ArgumentParser, argv=None) -> argparse.Namespace:
 
 
 class DemoPeer:
-    """An rclpy node subscribed to ``/<node>/points`` (sensor_msgs/PointCloud2): :meth:`points` is the latest cloud's xyz (n, 3), :meth:`sim_now` its
-    stamp in seconds (the node stamps with simulation time)."""
+    """An rclpy node with ``use_sim_time``: :meth:`sim_now` is the node's ``/clock``;
+    subscribed to ``/<node>/points`` (sensor_msgs/PointCloud2, :meth:`points` the latest
+    cloud's xyz), ``/<node>/rejections`` (diagnostic_msgs/DiagnosticStatus, kept in
+    :attr:`rejections`) and ``/<node>/energy`` (an ERROR status: diverged);
+    :meth:`check` raises :class:`Refused` on the first rejection or a divergence."""
 
-    def __init__(self, name: str, node: str, argv=None):
+    def __init__(self, name: str, node: str, argv=None, timeout: float = 1800.0):
         import rclpy
+        from rclpy.parameter import Parameter
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
         from sensor_msgs.msg import PointCloud2
         rclpy.init(args=argv)
-        self.node = rclpy.create_node(name)
+        self.node = rclpy.create_node(
+            name, parameter_overrides=[Parameter('use_sim_time', value=True)])
         self.base = f'/{node}'
         self.clouds = []
+        self.rejections = []
+        self.deadline = time.monotonic() + timeout
         self.node.create_subscription(PointCloud2, f'{self.base}/points',
                                       self.clouds.append, 5)
+        self.node.create_subscription(DiagnosticStatus, f'{self.base}/rejections',
+                                      self.rejections.append, 50)
+        self.diverged = None                 # the node's reason, once it has diverged
+        self.node.create_subscription(DiagnosticArray, f'{self.base}/energy',
+                                      self._on_energy, 5)
+
+    def _on_energy(self, msg) -> None:
+        st = msg.status[0] if msg.status else None
+        if st is not None and st.level == st.ERROR and self.diverged is None:
+            self.diverged = st.message
 
     def spin_once(self, timeout: float = 0.01) -> bool:
-        """Handle what has arrived (waiting at most ``timeout`` s); True if a new cloud
-        came in."""
+        """Handle what has arrived (waiting at most ``timeout`` wall s); True if a new
+        cloud came in."""
         import rclpy
         n = len(self.clouds)
         rclpy.spin_once(self.node, timeout_sec=timeout)
         return len(self.clouds) > n
 
-    def spin(self, seconds: float) -> None:
-        """Handle callbacks for ``seconds`` of wall time."""
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.spin_once(min(0.01, max(end - time.monotonic(), 0.0)))
-
     def wait_for(self, ready, seconds: float) -> bool:
-        """Spin until a cloud has arrived and ``ready()`` holds, or ``seconds`` of wall time
-        have passed; True if a cloud came."""
+        """Spin until a cloud and the clock have arrived and ``ready()`` holds, or
+        ``seconds`` of wall time have passed; True if they came."""
         end = time.monotonic() + seconds
-        while time.monotonic() < end and not (self.clouds and ready()):
+        while time.monotonic() < end and not (self.clouds and self.sim_now() > 0
+                                              and ready()):
             self.spin_once(0.1)
-        return bool(self.clouds)
+        return bool(self.clouds) and self.sim_now() > 0
 
     def sim_now(self) -> float:
-        """Simulation time [s] of the latest cloud."""
-        stamp = self.clouds[-1].header.stamp
-        return stamp.sec + 1e-9 * stamp.nanosec
+        """Simulation time [s]: the node's /clock (0 before the first)."""
+        return self.node.get_clock().now().nanoseconds * 1e-9
 
     def points(self) -> np.ndarray:
         """The latest cloud's vertex positions (n, 3) [m]; the node publishes x, y, z,
@@ -80,13 +107,34 @@ class DemoPeer:
         c = self.clouds[-1]
         return np.frombuffer(bytes(c.data), dtype='<f4').reshape(-1, 6)[:, :3].astype(float)
 
-    def wait_sim(self, seconds: float) -> None:
-        """Spin until the simulation time has moved on ``seconds`` (a node slower than real
-        time takes longer; at most 20 s of wall time per second asked)."""
-        target = self.sim_now() + seconds
-        end = time.monotonic() + 20.0 * seconds + 1.0
-        while self.sim_now() < target and time.monotonic() < end:
+    def check(self) -> None:
+        """:class:`Refused` if the node has refused a command of this demo; a wall-clock
+        ``TimeoutError`` past ``--timeout``."""
+        if self.diverged is not None:
+            raise Refused(f'the node stopped: {self.diverged}')
+        if self.rejections:
+            r = self.rejections[0]
+            vals = ', '.join(f'{kv.key}={kv.value}' for kv in r.values)
+            raise Refused(f'the node refused {r.name}: {r.message} ({vals})')
+        if time.monotonic() > self.deadline:
+            raise TimeoutError('the run took longer than --timeout (wall clock): is the '
+                               'node still running?')
+
+    def wait_until(self, t: float) -> None:
+        """Spin until the simulation time reaches ``t`` [s] (checking as it goes)."""
+        while self.sim_now() < t:
             self.spin_once(0.01)
+            self.check()
+
+    def wait_sim(self, seconds: float) -> None:
+        """Spin for ``seconds`` of simulation time (a node slower than real time takes
+        longer in wall time)."""
+        self.wait_until(self.sim_now() + seconds)
+
+    def stamp(self, header, t: float) -> None:
+        """Stamp ``header`` with simulation time ``t`` [s]."""
+        ns = int(round(t * 1e9))
+        header.stamp.sec, header.stamp.nanosec = ns // 10 ** 9, ns % 10 ** 9
 
     def close(self) -> None:
         import rclpy

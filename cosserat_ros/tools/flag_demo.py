@@ -1,15 +1,18 @@
 """``flag_demo``: blow a gusty 6 m/s wind on the flag of ``config/flag.yaml`` through the
 node's ``~/wind`` topic, and measure how it flies.
 
-    flag_demo [--node cloth_node] [--speed 6.0] [--duration 10.0]
+    flag_demo [--node cloth_node] [--speed 6.0] [--duration 10.0] [--wait 120] [--timeout 1800]
 
-Streams :func:`gust` at 30 Hz on ``~/wind`` for ``--duration`` seconds (of simulation time,
-read from ``~/points``), then checks the flag: its free edge (the vertices furthest from the
+Streams :func:`gust` on ``~/wind`` for ``--duration`` seconds of simulation time, one
+message per 1/30 s of simulation time, each stamped with the simulation time it is for
+and sent when the node's ``/clock`` reaches it (its node has ``use_sim_time``), so the
+sequence is the same at any real-time factor; then checks the flag: its free edge (the vertices furthest from the
 pole) must have flown out downwind (mean distance from the pole above half the flag's
 length) and fluttered (the free edge's sideways position varying by more than 2 cm over
-the last half of the run). Prints what it measured; exit 0 if it flew, 1 if not, 2 if the
-node is not there. Needs ``air.enabled: true`` and ``publish.points: true`` (flag.yaml has
-both).
+the last half of the run). Prints what it measured; exit 0 if it flew, 1 if not or if the
+node refused a message (its reason printed), 2 if the node is not there. Needs
+``air.enabled: true``, ``publish.points: true`` and ``publish_clock: true`` (flag.yaml has
+them).
 
 Why gusts: the air model (``core/air.py``) is local, each triangle pushed by its own
 relative velocity, with no wake, so in a steady wind a flag settles into a steady shape,
@@ -22,13 +25,12 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 
 import numpy as np
 
 __all__ = ['main', 'gust']
 
-RATE = 30.0
+RATE = 30.0           # wind messages per second of simulation time
 
 
 def gust(t: float, speed: float) -> np.ndarray:
@@ -44,17 +46,20 @@ def gust(t: float, speed: float) -> np.ndarray:
 
 def main(argv=None) -> int:
     from geometry_msgs.msg import Vector3Stamped
-    from .demo_peer import DemoPeer, parse, parser
+    from rclpy.executors import ExternalShutdownException
+    from .demo_peer import DemoPeer, Refused, parse, parser
     ap = parser('flag_demo', __doc__)
     ap.add_argument('--speed', type=float, default=6.0, help='mean wind speed [m/s]')
-    ap.add_argument('--duration', type=float, default=10.0, help='seconds of wind')
+    ap.add_argument('--duration', type=float, default=10.0,
+                    help='seconds of simulation time of wind')
     a = parse(ap, argv)
-    peer = DemoPeer('flag_demo', a.node, argv)
+    peer = DemoPeer('flag_demo', a.node, argv, a.timeout)
     wind = peer.node.create_publisher(Vector3Stamped, f'{peer.base}/wind', 10)
     try:
         if not peer.wait_for(wind.get_subscription_count, a.wait):
-            print(f'flag_demo: error: no {peer.base}/points (publish.points) after '
-                  f'{a.wait:g} s: start the node with config/flag.yaml', file=sys.stderr)
+            print(f'flag_demo: error: no {peer.base}/points (publish.points) or /clock '
+                  f'(publish_clock) after {a.wait:g} s: start the node with '
+                  'config/flag.yaml', file=sys.stderr)
             return 2
         x0 = peer.points()
         pole = x0[:, 0].min()
@@ -62,21 +67,22 @@ def main(argv=None) -> int:
         free = x0[:, 0] > pole + 0.97 * length
         t0 = peer.sim_now()
         side, out = [], []
-        wall_end = time.monotonic() + 20.0 * a.duration + 5.0
-        next_send = 0.0
-        while peer.sim_now() < t0 + a.duration and time.monotonic() < wall_end:
-            now = time.monotonic()
-            if now >= next_send:
+        steps = int(round(a.duration * RATE))
+        k = 0
+        while k < steps:
+            # every gust whose time has come, in order (several if the node ran ahead)
+            while k < steps and t0 + k / RATE <= peer.sim_now():
                 msg = Vector3Stamped()
                 msg.header.frame_id = 'world'
-                msg.vector.x, msg.vector.y, msg.vector.z = map(
-                    float, gust(peer.sim_now() - t0, a.speed))
+                peer.stamp(msg.header, t0 + k / RATE)
+                msg.vector.x, msg.vector.y, msg.vector.z = map(float, gust(k / RATE, a.speed))
                 wind.publish(msg)
-                next_send = now + 1.0 / RATE
+                k += 1
             if peer.spin_once(0.01) and peer.sim_now() > t0 + 0.5 * a.duration:
                 p = peer.points()[free]
                 side.append(p[:, 1].mean())
                 out.append(p[:, 0].mean() - pole)
+            peer.check()
         if not out:
             print('flag_demo: error: the node published no points during the run',
                   file=sys.stderr)
@@ -87,7 +93,10 @@ def main(argv=None) -> int:
               f'{length:.2f} m) and swung {100 * sway:.1f} cm across the wind over the last '
               f'{a.duration / 2:g} s: {"flew" if flew else "did NOT fly"}')
         return 0 if flew else 1
-    except KeyboardInterrupt:
+    except (Refused, TimeoutError) as exc:
+        print(f'flag_demo: error: {exc}', file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, ExternalShutdownException):    # Ctrl-C, SIGTERM
         return 130
     finally:
         peer.close()
