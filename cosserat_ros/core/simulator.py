@@ -489,6 +489,15 @@ class ClothSimulator:
                              f"{numba.config.NUMBA_NUM_THREADS}], got {value!r}")
         self._threads = value
 
+    @property
+    def best_threads(self) -> int:
+        """The thread count the step runs fastest on now, by its own measurement
+        (:attr:`threads`): the caller's other parallel work (the node's publishing: the
+        energy densities, the cameras) is best run on it too."""
+        if self._threads != 'auto':
+            return self._threads
+        return self._tuner.best if self._tuner is not None else numba.get_num_threads()
+
     def _solve(self, k: int) -> int:
         """The solver's ``k`` steps on the thread count :attr:`threads` says; the steps
         done (fewer: the next one went bad)."""

@@ -51,6 +51,7 @@ import time
 import traceback
 from typing import Dict, List, Optional, Tuple
 
+import numba
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -1038,7 +1039,14 @@ class ClothNode(Node):
         # paused, nothing moves: the state goes out when it changes and once a second
         if running or self._dirty or now - self._last_publish >= PAUSED_PUBLISH_PERIOD:
             t1 = time.perf_counter()
-            self.publish_state()
+            # the publishing's parallel kernels (energy densities, cameras) on the count
+            # the step measured fastest: beside a busy process, one (core/threads.py)
+            was = numba.get_num_threads()
+            numba.set_num_threads(self.sim.best_threads)
+            try:
+                self.publish_state()
+            finally:
+                numba.set_num_threads(was)
             if running:
                 self.pacer.note_publish(time.perf_counter() - t1)
         self._retime(running)

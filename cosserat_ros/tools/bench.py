@@ -591,13 +591,24 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def run_node(params: str, watch_s: float, env=None, busy: bool = False,
+def busy_processes(k: int) -> list:
+    """``k`` processes that each spin on a core until killed (a shared machine)."""
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(k)]
+
+
+def stop(procs) -> None:
+    for p in procs:
+        p.kill()
+        p.wait()
+
+
+def run_node(params: str, watch_s: float, env=None, busy: int = 0,
              paused_s: float = 0.0):
     """Start the installed cloth_node as ``ros2 run`` does; return (seconds from process
     start to the first mesh message, mesh messages per second, real-time factor from the
     energy topic's sim_time over ``watch_s`` s after the first message, and the share of
-    one core the node used over ``paused_s`` s paused, or nan). ``busy``: one other
-    process spins on a core during the watch (a shared machine)."""
+    one core the node used over ``paused_s`` s paused, or nan). ``busy``: that many other
+    processes spin on a core each during the watch (a shared machine)."""
     import rclpy
     from ament_index_python.packages import get_package_prefix
     from diagnostic_msgs.msg import DiagnosticArray
@@ -630,16 +641,13 @@ def run_node(params: str, watch_s: float, env=None, busy: bool = False,
             raise RuntimeError('cloth_node published no mesh: ' + (proc.stderr.read()
                                                                    if proc.poll() else ''))
         first = meshes[0] - t0
-        hog = (subprocess.Popen([sys.executable, '-c', 'while True: pass'])
-               if busy else None)
+        hogs = busy_processes(busy)
         try:
             end = time.monotonic() + watch_s
             while time.monotonic() < end:
                 ex.spin_once(timeout_sec=0.01)
         finally:
-            if hog is not None:
-                hog.kill()
-                hog.wait()
+            stop(hogs)
         # the first second warms the executor and the step-cost estimate: skip it
         win = [e for e in energies if e[0] >= meshes[0] + 1.0]
         rtf = ((win[-1][1] - win[0][1]) / (win[-1][0] - win[0][0])
@@ -738,15 +746,17 @@ def part_node(watch_s: float):
         shipped_file = os.path.join(get_package_share_directory('cosserat_ros'), 'config',
                                     'cloth.yaml')
         print('\nThe shipped config/cloth.yaml on a shared machine: the node alone, then '
-              'with one other process spinning on a core all the time (target: at least '
-              '40% of the RTF alone), and the CPU it uses paused (target: under 5% of a '
-              'core).\n')
+              'with one and with two other processes spinning on a core each all the time '
+              '(targets: at least 60% and 40% of the RTF alone), and the CPU it uses '
+              'paused (target: under 5% of a core).\n')
         _table(('case', 'mesh msgs/s', 'RTF', 'RTF / alone', 'paused: share of a core'))
         _, rate0, rtf0, paused = run_node(shipped_file, watch_s, paused_s=5.0)
-        _, rate1, rtf1, _ = run_node(shipped_file, watch_s, busy=True)
-        print(f'| alone | {rate0:.1f} | {rtf0:.3f} | 1 | {paused:.3f} |')
-        print(f'| one busy process beside it | {rate1:.1f} | {rtf1:.3f} | {rtf1 / rtf0:.2f} '
-              '| |', flush=True)
+        print(f'| alone | {rate0:.1f} | {rtf0:.3f} | 1 | {paused:.3f} |', flush=True)
+        for k, label in ((1, 'one busy process'), (2, 'two busy processes')):
+            _, rate1, rtf1, _ = run_node(shipped_file, watch_s, busy=k)
+            print(f'| {label} beside it | {rate1:.1f} | {rtf1:.3f} | {rtf1 / rtf0:.2f} '
+                  '| |', flush=True)
+        part_busy_step(watch_s)
         # issue 26's demo: real fabric with the implicit solver at frame-rate steps
         denim = os.path.join(get_package_share_directory('cosserat_ros'), 'config',
                              'denim.yaml')
@@ -758,6 +768,48 @@ def part_node(watch_s: float):
               f"{p['solver.iterations']} Newton iteration(s) a step at dt = {p['dt']:.4g} s; "
               f'the watch holds its swing down from flat): {rate:.1f} mesh messages a second, '
               f'RTF {rtf:.3f}.', flush=True)
+
+
+def part_busy_step(seconds: float, n: int = 40):
+    """The library's step on a shared machine: ``ClothSimulator.step`` of the shipped
+    cloth (config/cloth.yaml's material, n x n) in calls of one 30 Hz frame's steps for
+    ``seconds`` s, alone and beside one and two busy processes, with ``threads='auto'``
+    (the default: core/threads.py) and with all of numba's threads fixed; each as its
+    speed over the speed alone (auto alone). Targets (issue 60): 0.6 beside one, 0.4
+    beside two."""
+    import yaml
+    from ament_index_python.packages import get_package_share_directory
+    from ..ros.params import pin_set
+    with open(os.path.join(get_package_share_directory('cosserat_ros'), 'config',
+                           'cloth.yaml')) as fh:
+        shipped = yaml.safe_load(fh)['cloth_node']['ros__parameters']
+    sim = ClothSimulator(grid_mesh(n, n), Material(**shipped['material']),
+                         dt=shipped['dt'], check_dt=False)
+    sim.pin(np.concatenate([pin_set(sim.mesh, p) for p in shipped['pinned']['sets']]))
+    sim.gravity = (0.0, 0.0, -peer.GRAVITY)
+    most = numba.get_num_threads()
+    print(f'\nThe library\'s step on a shared machine: ClothSimulator.step, {n} x {n}, '
+          f'config/cloth.yaml\'s material, in calls of one 30 Hz frame\'s steps for '
+          f'{seconds:g} s per case; speed over the speed alone with threads=\'auto\' '
+          '(targets: 0.6 beside one busy process, 0.4 beside two).\n')
+    _table(('threads', 'busy processes', 'ms per step', 'speed / alone (auto)'))
+    base = None
+    for busy in (0, 1, 2):
+        for threads in ('auto', most):
+            sim.reset()
+            sim.threads = threads
+            sim._tuner = None                       # measured afresh in each case
+            hogs = busy_processes(busy)
+            try:
+                time.sleep(0.2)
+                rtf = sustained_rtf(sim, seconds)
+            finally:
+                stop(hogs)
+            ms = 1e3 * sim.dt / rtf
+            if base is None:
+                base = ms
+            print(f'| {threads} | {busy} | {ms:.3f} | {base / ms:.2f} |', flush=True)
+    sim.threads = 'auto'
 
 
 #: the issue-26 sweep's stiff sheet: issue 6's, with E h = 2e3 N/m
