@@ -592,11 +592,9 @@ def test_a_tick_steps_until_the_next_is_due_less_its_publishing(monkeypatch, slo
     assert pacer.advance(lambda n: False, 10, 15e-3) == 0
 
 
-def test_sim_time_keeps_wall_time_over_many_ticks(monkeypatch):
-    """A tick steps the wall time since the last one in whole steps and carries what the
-    rounding left: with 133.3 steps per period (50 Hz, dt = 1.5e-4 s) the sim time is
-    within a step of the wall time after 300 ticks, where rounding each tick alone (133
-    steps) falls 0.25% (15 ms) behind. Regular ticks on a fake clock."""
+def _regular_ticks(monkeypatch, factor, dt, ticks=300):
+    """A 50 Hz timer's ``ticks`` regular ticks on a fake clock, a pacer asked for
+    ``factor``, steps of ``dt`` costing nothing much: (the steps of each tick, the pacer)."""
     clock = _FakeClock()
     monkeypatch.setattr(pacing, 'time', clock)
     steps = []
@@ -605,14 +603,23 @@ def test_sim_time_keeps_wall_time_over_many_ticks(monkeypatch):
         clock.t += n * 1e-7
         steps.append(n)
         return True
-    pacer = pacing.Pacer(1 / 50)
-    dt = 1.5e-4
+    pacer = pacing.Pacer(1 / 50, factor)
     start = clock.t
-    for k in range(300):
+    for k in range(ticks):
         now = start + k * pacer.period
         clock.t = now
         wanted = pacer.wanted(now, dt)
         pacer.carry(pacer.advance(step, wanted, pacer.period), wanted, dt, now)
+    return steps, pacer
+
+
+def test_sim_time_keeps_wall_time_over_many_ticks(monkeypatch):
+    """A tick steps the wall time since the last one in whole steps and carries what the
+    rounding left: with 133.3 steps per period (50 Hz, dt = 1.5e-4 s) the sim time is
+    within a step of the wall time after 300 ticks, where rounding each tick alone (133
+    steps) falls 0.25% (15 ms) behind. Regular ticks on a fake clock."""
+    dt = 1.5e-4
+    steps, pacer = _regular_ticks(monkeypatch, 1.0, dt)
     assert not pacer.lagging
     assert abs(sum(steps) * dt - 300 * pacer.period) <= dt
 
@@ -625,21 +632,7 @@ def test_sim_time_keeps_the_real_time_factor_asked_for(monkeypatch, factor, dt):
     than the period (dt = 0.1 s at 50 Hz: a step every 5 ticks, where taking at least one
     per tick would run 5x real time) or a factor makes a tick's share of a step small.
     Regular ticks on a fake clock."""
-    clock = _FakeClock()
-    monkeypatch.setattr(pacing, 'time', clock)
-    steps = []
-
-    def step(n):
-        clock.t += n * 1e-7
-        steps.append(n)
-        return True
-    pacer = pacing.Pacer(1 / 50, factor)
-    start = clock.t
-    for k in range(300):
-        now = start + k * pacer.period
-        clock.t = now
-        wanted = pacer.wanted(now, dt)
-        pacer.carry(pacer.advance(step, wanted, pacer.period), wanted, dt, now)
+    steps, pacer = _regular_ticks(monkeypatch, factor, dt)
     assert abs(sum(steps) * dt - factor * 300 * pacer.period) <= dt
 
 
