@@ -301,6 +301,78 @@ def test_steps_in_one_parallel_region_stop_at_the_step_that_went_bad():
     assert np.array_equal(ends[0][1], ends[1][1], equal_nan=True)
 
 
+_BARRIER_SCRIPT = """
+import sys
+import numba as nb
+import numpy as np
+from cosserat_ros.fast.workshare import arrive, _SYS_FUTEX
+
+@nb.njit(parallel=True)
+def rounds(sync, board, slow, out):
+    nthr = board.shape[0]
+    for t in nb.prange(nthr):
+        errors = 0
+        slept = 0
+        acc = 0.0
+        for r in range(1, out.shape[1] + 1):
+            if t == nthr - 1:                  # the late thread: the others wait for it
+                for i in range(slow):
+                    acc += i * 1e-12
+            board[t] = r
+            slept += arrive(sync, r, nthr)
+            for u in range(nthr):              # all have written round r before any left
+                if board[u] < r:
+                    errors += 1
+        out[t, 0] = errors
+        out[t, 1] = slept
+        out[t, 2] = acc > -1.0
+
+nb.set_num_threads(2)
+sync = np.zeros(4, dtype=np.int64)             # count, -, sleepers, spin: sleep at once
+out = np.zeros((2, 20000), dtype=np.int64)
+rounds(sync, np.zeros(2, dtype=np.int64), 2000, out)
+print(int(out[:, 0].sum()), int(out[0, 1]), int(out[1, 1]), int(sync[0]), _SYS_FUTEX)
+"""
+
+
+def test_the_barrier_sleeps_and_loses_no_wake_up():
+    # 20000 rounds of two threads, the second late by a short loop each round, the waiter
+    # sent to sleep at once (no spin): every round, each thread leaves only after both
+    # arrived, the early one slept (Linux: futex) and was woken every time; a lost wake-up
+    # hangs, so the rounds run in a process of their own with a time limit
+    if workshare.usable_cpus() < 2 or nb.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip('the barrier needs two threads, each on a CPU of its own')
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, '-c', _BARRIER_SCRIPT], capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    errors, slept0, slept1, count, futex = (int(v) for v in out.stdout.split())
+    assert errors == 0 and count == 2 * 20000
+    if futex:
+        assert slept0 > 1000, f'the early thread slept {slept0} times in 20000 rounds'
+    else:
+        assert slept0 == slept1 == 0
+
+
+def test_the_step_through_sleeping_barriers_is_the_same_to_the_bit():
+    # the one-region step with its waiters sent to sleep at once (no spin) and with the
+    # default spin: the same trajectory, to the bit
+    mesh = grid_mesh(19, 17, pattern='irregular', seed=3)
+    runs = []
+    for spin in (workshare.SPIN, 0):
+        sim = ClothSimulator(mesh, Material(zeta=50.0, xi=1e-3, phi=1e-3, density=0.2,
+                                            damping=0.3), dt=1e-4)
+        sim.pin([0, 5])
+        sim.gravity = (0, 0, -9.81)
+        assert sim.solver.work.sync[3] == workshare.SPIN
+        sim.solver.work.sync[3] = spin
+        assert _run(sim, True, 300) == 300
+        runs.append(sim.state.copy())
+    assert np.abs(runs[0].x - mesh.vertices).max() > 1e-4
+    assert all(np.array_equal(a, b) for a, b in zip(runs[0], runs[1]))
+
+
 def test_one_region_only_where_every_iteration_gets_a_cpu(monkeypatch):
     # the barrier of the one-region step waits for every iteration of its prange: it is
     # used only with numba's static schedule on a layer that runs them all at once, and

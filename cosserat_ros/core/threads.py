@@ -2,10 +2,13 @@
 measured cost per step says is faster, measured again as the load changes.
 
 Why: the parallel step (``fast/step.py``, one parallel region per call) meets its threads
-at a spin barrier a few times per step. On a shared machine the OS takes one of them off
-its CPU now and then, and the others spin at the barrier until it comes back: a step that
-took 0.29 ms alone on 2 threads took 30 ms beside one busy process, where one thread does
-not wait for anyone. Which count is faster depends on the load, so it is measured, not
+at a barrier a few times per step. On a shared machine the OS takes one of them off its
+CPU for a time slice now and then, and the others wait at the barrier until it comes back
+(they sleep after a short spin, ``fast/workshare.arrive``, so they no longer burn the CPU
+the busy process shares). On a 2-core host at 40 x 40, two threads were 2.1 times slower
+beside one busy process and 2.0 times beside two; one thread, which waits for nobody, 1.7
+times slower than two alone beside one and 2.6 times beside two (docs/performance.md, "A
+busy machine"). Which count is faster depends on the load, so it is measured, not
 guessed: :class:`ThreadTuner` runs each count once, then the faster, and the other once
 every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load both ways. A
 measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial (the rest of

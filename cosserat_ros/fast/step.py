@@ -51,7 +51,7 @@ class Work(NamedTuple):
     part: np.ndarray        # (nch, 3) the update's work, dissipation, bad per chunk
     force: np.ndarray       # (n, 3) the internal force of the last step
     ushare: np.ndarray      # (T+1,) int64 the update's work-sharing state (run_region)
-    sync: np.ndarray        # (2,) int64 run_region's barrier count and the steps done
+    sync: np.ndarray        # (3,) int64 run_region's barrier count, the steps done, sleepers
 
 
 @kernel(inline='always')
@@ -269,6 +269,7 @@ def _run_region(nsteps, state, control, coeff, faces, vf, vertices, tr_ptr, lane
     nu = split(ushare, nuc)
     sync[0] = 0
     sync[1] = nsteps
+    sync[2] = 0
     air = control.air[0] != 0.0
     per = 3 if air else 2                   # barriers per step
     asize = (x.shape[0] + nthr - 1) // nthr

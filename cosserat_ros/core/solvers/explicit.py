@@ -20,7 +20,7 @@ import numpy as np
 from ...fast.lanes import build_lanes
 from ...fast.plan import build_plan
 from ...fast.simd import LANES
-from ...fast.workshare import start_threads, usable_cpus
+from ...fast.workshare import SPIN, start_threads, usable_cpus
 from ...fast import step as _fast
 from ..air import air_pass
 from ..compiled import kernel
@@ -128,7 +128,8 @@ class ExplicitSolver:
         self.work = _fast.Work(np.zeros((m, 3, 3)), np.zeros((3, len(model.jets.idx))),
                                np.zeros((nch, 8, smax)), np.zeros(threads, dtype=np.int64),
                                np.zeros((nch, 3)), np.zeros((n, 3)),
-                               np.zeros(threads, dtype=np.int64), np.zeros(2, dtype=np.int64))
+                               np.zeros(threads, dtype=np.int64),
+                               np.array([0, 0, 0, SPIN], dtype=np.int64))
         # the internal force through the one-region step: x and v of its own, never read
         self._force_state = State(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(2))
         self._force_control = Control.empty(n)
