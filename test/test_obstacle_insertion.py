@@ -27,30 +27,19 @@ import numpy as np
 import pytest
 
 from cosserat_ros.core import contact as C
-from cosserat_ros.mesh import grid_mesh
-from cosserat_ros.simulator import ClothSimulator, Material
+from test_contact import _sim as _contact_sim, SOLVERS
 
-G = 9.81
-CLOTH = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=0.1)
-#: the implicit solver's step
-FRAME = 1.0 / 60.0
 #: the ball put through the lying cloth (``_lying``: vertices every 5 cm at z = th = 2
 #: mm): centred 3 cm above the ground on the middle vertex, radius such that the 9
 #: vertices within 7.1 cm of the axis are inside it and the 4 at 10 cm in its layer
 #: but outside it (d = 0.85 mm): the placement pushes those 4
 BALL = dict(center=(0.0, 0.0, 0.03), radius=0.103)
-SOLVERS = pytest.mark.parametrize('solver', ['explicit', 'implicit'])
 
 
 def _sim(n=12, side=0.6, solver='explicit'):
-    mesh = grid_mesh(n, n, width=side, height=side)
-    if solver == 'implicit':
-        sim = ClothSimulator(mesh, CLOTH, dt=FRAME, solver='implicit')
-    else:
-        sim = ClothSimulator(mesh, CLOTH, dt=1e-5, check_dt=False)
-        sim.dt = 0.9 * sim.critical_dt()
-    sim.gravity = (0.0, 0.0, -G)
-    return sim
+    """test_contact's cloth (its material; the explicit step at 0.9 of its critical dt,
+    the implicit one at 1/60 s) as a 0.6 m square of 12 x 12 cells."""
+    return _contact_sim(n, side, solver=solver)
 
 
 def _hanging(solver='explicit', n=12):

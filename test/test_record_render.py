@@ -383,6 +383,30 @@ def stamps_of(bag_dir, topic):
                          for c, _, raw in reader.messages(connections=conns)])
 
 
+def _run_through_pause(cmd, name, timeout):
+    """Start ``cmd`` (a tool that subscribes as node ``name``), pause the node for 4 s of
+    wall time once it has subscribed, and let it finish; returns (the process, its
+    ``poll()`` at the end of the pause: None while it still runs, its stderr)."""
+    pauser = Pauser()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        pauser.wait_for_subscriber(name, p)
+        pauser.pause(True)
+        try:
+            time.sleep(4.0)                      # wall time, no simulation time
+            during = p.poll()
+        finally:
+            pauser.pause(False)
+        _, err = p.communicate(timeout=timeout)
+    except BaseException:
+        p.kill()
+        p.communicate()
+        raise
+    finally:
+        pauser.close()
+    return p, during, err
+
+
 def test_duration_counts_simulation_time_through_a_pause(node, bag, tmp_path):
     """--duration is simulation time: with the node paused right after the recorder
     subscribed (its clock stands still for 4 s of wall time), the recorder is still
@@ -390,21 +414,9 @@ def test_duration_counts_simulation_time_through_a_pause(node, bag, tmp_path):
     tick, as they would with the node at full speed. A wall-clock duration ended during the
     pause with a fraction of it. (``bag`` first: the node is up and publishing.)"""
     out = tmp_path / 'paused'
-    pauser = Pauser()
-    try:
-        p = subprocess.Popen([exe('record'), '-o', str(out), '--wait', '150',
-                              '--duration', '3', '--ros-args', '-r', '__node:=paused_rec'],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        pauser.wait_for_subscriber('paused_rec', p)
-        pauser.pause(True)
-        try:
-            time.sleep(4.0)                      # wall time, no simulation time
-            during = p.poll()
-        finally:
-            pauser.pause(False)
-    finally:
-        pauser.close()
-    _, err = p.communicate(timeout=180)
+    p, during, err = _run_through_pause(
+        [exe('record'), '-o', str(out), '--wait', '150', '--duration', '3', '--ros-args',
+         '-r', '__node:=paused_rec'], 'paused_rec', timeout=180)
     assert during is None, err                  # still recording through the pause
     assert p.returncode == 0, err
     clock = stamps_of(out, '/clock')
@@ -607,20 +619,9 @@ def test_render_live_topics(node, bag, tmp_path):
     the node is up and publishing."""
     import re
     out = tmp_path / 'live'
-    pauser = Pauser()
-    try:
-        p = subprocess.Popen([exe('render'), '--live', '2', '-o', str(out), '--frames', '6'],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        pauser.wait_for_subscriber('cloth_render', p)
-        pauser.pause(True)
-        try:
-            time.sleep(4.0)                      # wall time, no simulation time
-            during = p.poll()
-        finally:
-            pauser.pause(False)
-    finally:
-        pauser.close()
-    _, err = p.communicate(timeout=300)
+    p, during, err = _run_through_pause(
+        [exe('render'), '--live', '2', '-o', str(out), '--frames', '6'], 'cloth_render',
+        timeout=300)
     assert during is None, err
     assert p.returncode == 0, err
     pngs = sorted(out.glob('cloth_*s.png'))
