@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cosserat_ros.mesh import grid_mesh
-from cosserat_ros.simulator import ClothSimulator, Material
+from cosserat_ros.simulator import ClothSimulator, Material, SimulationDiverged
 
 G = 9.81
 
@@ -294,3 +294,131 @@ def test_waypoints_in_the_past_or_beyond_the_bound_are_refused():
         sim.move_handle(h, c, at=sim.time + 1e4)
     sim.move_handle(h, c, duration=0.1)                # a duration replaces the path
     assert len(sim.handle_waypoints(h)) == 2
+
+
+# ------------------------------------------------------------------ a failed step rolls back
+
+def _equal_handles(a, b):
+    assert a.keys() == b.keys()
+    for hid in a:
+        for key in a[hid]:
+            assert np.array_equal(a[hid][key], b[hid][key]), (hid, key)
+
+
+def _moving_handles(sim, break_force=None):
+    """Two top-corner handles with a waypoint every 3 steps ahead (the step's calls end at
+    each), the cloth hanging from them for 0.05 s."""
+    hs = [sim.grasp(point=c, radius=0.03, break_force=break_force) for c in _corners(sim)]
+    sim.step(int(round(0.05 / sim.dt)))
+    for h, c in zip(hs, _corners(sim)):
+        for k in range(1, 40):
+            sim.move_handle(h, c + (0.0, 0.0, 0.002 * k), at=sim.time + 3 * k * sim.dt)
+    return hs
+
+
+def _before(sim, hs):
+    return (sim.positions, sim.velocities, sim.handles,
+            [sim.handle_waypoints(h) for h in hs], sim.control.pinned.copy(),
+            sim.control.pin_velocity.copy(), sim.time)
+
+
+def _assert_as_before(sim, hs, before):
+    x, v, handles, waypoints, pinned, pin_velocity, t = before
+    assert np.array_equal(sim.positions, x) and np.array_equal(sim.velocities, v)
+    assert sim.time == t
+    _equal_handles(sim.handles, handles)
+    for h, w in zip(hs, waypoints):
+        got = sim.handle_waypoints(h)
+        assert len(got) == len(w)
+        assert all(a[0] == b[0] and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+                   for a, b in zip(got, w))
+    assert np.array_equal(sim.control.pinned, pinned)
+    assert np.array_equal(sim.control.pin_velocity, pin_velocity)
+
+
+def test_a_divergence_in_a_later_call_puts_the_handles_back_too():
+    """issue 57: ``step(n)`` with moving handles runs calls of a few steps; when a later
+    call diverges, the cloth goes back to the start of ``step`` and so do the handles
+    (their poses and paths, which the calls that succeeded had moved on, and the held
+    vertices' prescribed velocities), so that stepping on from there is the same as if the
+    failed call had never been made."""
+    sims = [_sim(), _sim()]
+    hss = [_moving_handles(s) for s in sims]
+    sim, hs = sims[0], hss[0]
+    before = _before(sim, hs)
+    free = int(np.flatnonzero(~sim.control.pinned)[sim.n_vertices // 2])
+    m = float(sim.coefficients.mass[free])
+    sim.set_vertex_forces([free], [[0.0, 0.0, m * sim._vmax / (15 * sim.dt)]])
+    with pytest.raises(SimulationDiverged) as err:
+        sim.step(100)
+    assert err.value.step - sim.step_count > 3          # after a call that succeeded
+    _assert_as_before(sim, hs, before)
+    sim.set_vertex_forces([], np.zeros((0, 3)))
+    for s in sims:
+        s.step(60)
+    assert np.array_equal(sims[0].positions, sims[1].positions)
+    _equal_handles(sims[0].handles, sims[1].handles)
+
+
+def test_a_divergence_gives_back_the_vertices_that_slipped_before_it():
+    """Vertices that slipped out of a handle (break force) in the calls that succeeded are
+    held again after the failed step, as they were at its start. The failure is the
+    solver's (fewer steps done than asked, as a divergence reports it) in the sixth call,
+    after a pull of five times the cloth's weight on the free vertex next to a handle has
+    torn vertices out of it."""
+    sim = _sim()
+    weight = float(sim.coefficients.mass.sum()) * G
+    hs = _moving_handles(sim, break_force=weight)
+    before = _before(sim, hs)
+    x = sim.positions
+    free = np.flatnonzero(~sim.control.pinned)
+    near = int(free[np.argmin(np.linalg.norm(x[free] - _corners(sim)[0], axis=1))])
+    sim.set_vertex_forces([near], [[0.0, 0.0, -5.0 * weight]])
+    held = sum(len(d['vertices']) for d in before[2].values())
+    slipped = []
+    broken = sim._handles.broken
+
+    def watched(reaction):
+        out = broken(reaction)
+        slipped.append(len(out))
+        return out
+    sim._handles.broken = watched
+    solve = sim._solve
+    calls = []
+
+    def failing(k):
+        calls.append(k)
+        return 0 if len(calls) == 6 else solve(k)
+    sim._solve = failing
+    with pytest.raises(SimulationDiverged):
+        sim.step(100)
+    assert len(calls) == 6 and sum(slipped) > 0         # vertices slipped before it failed
+    _assert_as_before(sim, hs, before)
+    assert sum(len(d['vertices']) for d in sim.handles.values()) == held
+
+
+def test_an_interrupted_step_puts_back_the_cloth_the_handles_and_the_obstacles():
+    """Any exception inside ``step`` (here a KeyboardInterrupt from the third call of the
+    compiled step) leaves the cloth, the handles and a moving obstacle as they were at
+    the start of the call."""
+    sim = _sim()
+    hs = _moving_handles(sim)
+    ball = sim.add_obstacle('sphere', radius=0.05, center=(0.0, 0.0, -0.5))
+    sim.set_obstacle_pose(ball, (0.0, 0.0, -0.5), linear_velocity=(0.0, 0.0, 0.2))
+    before = _before(sim, hs)
+    pose = sim.obstacles[ball]
+    solve = sim._solve
+    calls = []
+
+    def interrupted(k):
+        calls.append(k)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return solve(k)
+    sim._solve = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        sim.step(50)
+    _assert_as_before(sim, hs, before)
+    got = sim.obstacles[ball]
+    assert np.array_equal(got['position'], pose['position'])
+    assert np.array_equal(got['orientation'], pose['orientation'])

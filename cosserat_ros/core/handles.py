@@ -32,6 +32,7 @@ force a call lasts at most :data:`BREAK_CHECK` (every step of the implicit solve
 """
 from __future__ import annotations
 
+import copy
 import math
 from typing import Dict
 
@@ -106,6 +107,16 @@ class HandleSet:
 
     def _item(self, hid) -> _Handle:
         return self._items[id_key(self._items, hid, 'handle')]
+
+    def snapshot(self):
+        """Everything :meth:`restore_snapshot` needs to undo later changes: a copy of each
+        handle's slots (they are only ever assigned anew, never changed in place)."""
+        return {hid: copy.copy(h) for hid, h in self._items.items()}, self._next
+
+    def restore_snapshot(self, snap) -> None:
+        """Back to the snapshot (copied again, so it can be restored more than once)."""
+        self._items = {hid: copy.copy(h) for hid, h in snap[0].items()}
+        self._next = snap[1]
 
     def held(self) -> np.ndarray:
         """Indices of every vertex some handle holds."""

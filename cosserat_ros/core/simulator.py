@@ -443,6 +443,11 @@ class ClothSimulator:
             return
         backup = self.state.copy()
         cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
+        # what the calls of _step_in_calls move besides the state: the handles (their
+        # poses along their paths, the vertices that slipped out) and moving obstacles
+        handles = (self._handles.snapshot(), self.control.pin_velocity.copy()
+                   ) if len(self._handles) else None
+        poses = self._obstacles.poses() if cap else None
         if self._self_on:
             self._self.begin(self.state.x, self.state.v)
         self._features.start()
@@ -453,13 +458,11 @@ class ClothSimulator:
             else:
                 done = self._step_in_calls(n, cap)
         except BaseException:
-            # any other failure (or a Ctrl-C) inside a step: the state as before the call
-            self.state.assign(backup)
-            self.solver.forget()
+            # any other failure (or a Ctrl-C) inside a step: all as before the call
+            self._roll_back(backup, handles, poses)
             raise
         if done < n:
-            self.state.assign(backup)
-            self.solver.forget()
+            self._roll_back(backup, handles, poses)
             crit = self.critical_dt() if self._solver_kind == 'explicit' else math.inf
             if self._dt > crit:
                 hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
@@ -471,6 +474,19 @@ class ClothSimulator:
                                      hint)
         self._steps += n
         self._time += n * self._dt
+
+    def _roll_back(self, backup, handles, poses) -> None:
+        """Back to the start of a :meth:`step` that failed: the state, and the handles and
+        the obstacles' poses where the calls that succeeded had moved them."""
+        self.state.assign(backup)
+        self.solver.forget()
+        if handles is not None:
+            self._handles.restore_snapshot(handles[0])
+            self._sync_pins()
+            self.control.pin_velocity[:] = handles[1]
+        if poses is not None:
+            self._obstacles.restore(poses)
+            self._sync_obstacles()
 
     @property
     def threads(self):
@@ -524,9 +540,8 @@ class ClothSimulator:
         call. The corners of boxes (:mod:`.features`) and self-collision answer after
         each step while they are near, and otherwise allow calls of several steps,
         checked afterwards and stepped again one by one if they moved too far. Returns
-        the steps done (fewer: a divergence; obstacles and handles then go back to where
-        the call began)."""
-        poses = self._obstacles.poses()
+        the steps done (fewer: a divergence; :meth:`step` then puts obstacles and handles
+        back where the call began)."""
         boxes = self._features.present(self.control)
         own = self._self_on
         start = self.state.copy() if boxes or own else None
@@ -600,9 +615,6 @@ class ClothSimulator:
                 self._sync_obstacles()
         if not self._handles.moving(self._time + done * self._dt):
             self.control.pin_velocity[:] = 0.0
-        if done < n and cap:
-            self._obstacles.restore(poses)
-            self._sync_obstacles()
         return done
 
     # ------------------------------------------------------------------ handles
