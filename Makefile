@@ -12,12 +12,12 @@ BENCH_STAMP := $(VENV)/.bench-installed
 PKG_SOURCES := $(shell find cosserat_ros config resource launch rviz -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
-.PHONY: install run view test validate bench clean
+.PHONY: install run view test docs validate bench clean
 
 install: $(PKG_STAMP)
 
 $(DEPS_STAMP): requirements.txt requirements-dev.txt requirements-viz.txt requirements-batch.txt \
-		requirements-envs.txt
+		requirements-envs.txt requirements-docs.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade 'pip<25'
 	$(PY) -m pip install --quiet -r requirements-dev.txt
@@ -50,8 +50,13 @@ view: $(PKG_STAMP) $(VIZ_STAMP)
 	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS) \
 	    -p foxglove.port:=$(VIEW_PORT)
 
-test: $(PKG_STAMP)
+test: $(PKG_STAMP) docs
 	$(ENV) $(VENV)/bin/pytest -q --durations=20 test
+
+# the manual (doc/, the layout rosdoc2 builds) into build/doc, warnings as errors
+docs: $(DEPS_STAMP)
+	$(ENV) $(PY) -m sphinx -W --keep-going -q -b html doc build/doc
+	@echo "the manual: build/doc/index.html"
 
 validate: $(PKG_STAMP)
 	$(ENV) $(PY) -m cosserat_ros.tools.validate --out docs

@@ -1,6 +1,6 @@
 """cosserat_ros: cloth simulation on the elastic Cosserat surface, served as a ROS 2 node.
 
-Sub-packages (reading order for a newcomer in ``README.md``, *Layout*):
+Sub-packages (reading order for a newcomer in the manual's ``doc/architecture.md``):
 
 * ``core``: the simulator, no ROS import: mesh, geometry, material, the model (frozen rest
   data), state and controls, the energy terms (``core/terms``: one module each), the

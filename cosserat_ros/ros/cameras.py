@@ -18,7 +18,7 @@ they show and in frame ``<name>_optical_frame``:
   (the transform ``frame_id`` -> ``<name>_optical_frame``), published with every image.
   No tf2 wheels exist on PyPI; on a ROS install a ``tf2_ros.TransformBroadcaster`` (or
   a static one for a fixed camera) relays it to ``/tf`` so that RViz places the images
-  and clouds (README);
+  and clouds (doc/viewing.md);
 * in: ``pose`` ``geometry_msgs/PoseStamped`` in ``frame_id`` (finite, unit quaternion:
   the checks of a handle's target) moves the camera, e.g. one on a robot's wrist.
 

@@ -312,7 +312,7 @@ class ClothNode(Node):
         if bad:
             raise ConfigError(f'unknown parameter{"s" if len(bad) > 1 else ""} '
                               f'{", ".join(bad)} for {self.get_fully_qualified_name()} '
-                              '(README lists them all)')
+                              '(doc/node.md lists them all)')
         files = params_files(argv)
         if files and not any(node_sections(path, self.get_fully_qualified_name())[0]
                              for path in files):
@@ -1227,7 +1227,7 @@ def _security_reason(exc: Exception) -> Optional[str]:
     keystore = os.environ.get('ROS_SECURITY_KEYSTORE', '')
     return (f'ROS security requested (ROS_SECURITY_ENABLE=true, strategy '
             f'{os.environ.get("ROS_SECURITY_STRATEGY", "Permissive")}, keystore '
-            f'{keystore or "unset"}) but it cannot be provided: {first}; see README, '
+            f'{keystore or "unset"}) but it cannot be provided: {first}; see doc/node.md, '
             '"Security"')
 
 

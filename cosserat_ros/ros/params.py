@@ -1,7 +1,7 @@
 """The node's parameters: declarations, defaults, and validation as pure functions.
 
 :data:`PARAMETERS` is the one source of truth for every parameter's name, default, range
-and description (README's table is written from it). The validators here take values and
+and description (the manual's table, doc/node.md, is generated from it). The validators here take values and
 return values or raise :class:`ConfigError` with a one-line reason; nothing in this module
 touches a node or a simulator, so they are tested without spinning anything.
 """
@@ -156,13 +156,13 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
                                   'reset/pause/grasp services, and no run-time change of '
                                   'any parameter but ' + ', '.join(OBSERVER_RUNTIME), True)),
     'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
-                                    'obstacles.<name>.shape and its geometry (README); '
+                                    'obstacles.<name>.shape and its geometry (doc/contact.md); '
                                     "[''] for none", True)),
     'cameras.names': ([''], _desc('Virtual RGB-D cameras, each with '
                                   '~/cameras/<name>/{depth,color}/image_raw, camera_info, '
                                   'pose_out, pose (in) and with cameras.<name>.points '
                                   'points; cameras.<name>.width, height, fov, position, '
-                                  "orientation, rate, near, far (README); [''] for none",
+                                  "orientation, rate, near, far (doc/viewing.md); [''] for none",
                                   True)),
 }
 

@@ -167,8 +167,8 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
         if name in ('use_sim_time',):
             continue
         if name not in out:
-            raise ConfigError(f'{name}: not a parameter of the node (see the README\'s '
-                              'table; obstacles.<name>.*, handles.<name>.* and '
+            raise ConfigError(f'{name}: not a parameter of the node (see the manual\'s '
+                              'doc/node.md; obstacles.<name>.*, handles.<name>.* and '
                               'cameras.<name>.* need the name in obstacles.names, '
                               'handles.names or cameras.names)')
         value = _typed(name, value, _kind(out[name]))

@@ -1,0 +1,41 @@
+"""The manual (doc/, built by ``make docs``) against the code: the parameter table is
+generated from the node's declarations, the README stays the short front door."""
+import os
+import re
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, os.path.join(ROOT, 'doc', '_ext'))
+
+from cosserat_ros.ros.params import PARAMETERS  # noqa: E402
+from parameters_page import parameters_table  # noqa: E402
+
+
+def test_the_parameter_page_lists_every_declared_parameter_and_no_other():
+    table = parameters_table()
+    names = re.findall(r'^\| `([^`]+)` \|', table, flags=re.M)
+    assert names == list(PARAMETERS)
+    for name, (default, desc) in PARAMETERS.items():
+        row = next(line for line in table.splitlines() if line.startswith(f'| `{name}` |'))
+        assert f'`{default!r}`'.replace('|', '\\|') in row
+        assert ('| no |' if desc.read_only else '| yes |') in row
+    node = open(os.path.join(ROOT, 'doc', 'node.md')).read()
+    assert '```{include} generated/parameters.md' in node
+
+
+def test_every_page_is_in_the_table_of_contents():
+    doc = os.path.join(ROOT, 'doc')
+    index = open(os.path.join(doc, 'index.md')).read()
+    pages = sorted(f[:-3] for f in os.listdir(doc) if f.endswith('.md') and f != 'index.md')
+    listed = re.findall(r'^([a-z][a-z-]*)$', index, flags=re.M)
+    assert sorted(listed) == pages
+
+
+def test_the_readme_is_the_short_front_door():
+    readme = open(os.path.join(ROOT, 'README.md')).read()
+    assert len(readme.splitlines()) <= 200
+    # no hand-written parameter table beside the generated one
+    assert '| parameter | default |' not in readme
+    for link in re.findall(r'\]\((doc/[^)#]+)', readme):
+        assert os.path.exists(os.path.join(ROOT, link)), link
