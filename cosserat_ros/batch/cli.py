@@ -1,4 +1,4 @@
-"""``batch``: randomized cloth episodes on Ray, and what to look at afterwards.
+"""``batch``: randomized cloth episodes on Ray, and what to look at afterwards::
 
     batch run SPEC.yaml -o OUT [--workers N] [--threads T] [--address ADDR] [--resume]
               [--max-retries K] [--episode-timeout S] [--progress bar|jsonl|none]

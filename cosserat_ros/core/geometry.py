@@ -39,8 +39,8 @@ Seed Sec. 5.2 (Batagelo & Wu): area-weighted vertex normals, a local frame
 ``{t, b, n}`` with ``t`` along the first incident edge, and least squares of the normal
 differences along every incident edge, ``-(dn . t) = S_tt t_j + S_tb b_j``,
 ``-(dn . b) = S_tb t_j + S_bb b_j`` (the Weingarten relation, Eq. 12 with the sign of
-``model.md``), then ``b_ab = (a_a . e_k)(a_b . e_l) S_kl``. Its error does not fall with
-refinement: the O(h) error of the vertex normals becomes an O(1) curvature error.
+doc/theory.md section 1), then ``b_ab = (a_a . e_k)(a_b . e_l) S_kl``. Its error does not
+fall with refinement: the O(h) error of the vertex normals becomes an O(1) curvature error.
 
 Sign convention: ``b_ab = n . r_ab`` with ``n`` along ``a_1 x a_2`` (Eq. 10, 11); a sphere
 with outward normals has ``b_ab = -a_ab / R``, i.e. mean curvature ``H = a^ab b_ab / 2 = -1/R``

@@ -10,7 +10,7 @@ For symmetric 2x2 tensors ``e, k`` and ``Ai = A^-1`` this is the bilinear form
 ``W = zeta B(eps, eps) + xi B(kap, kap) + phi B(eps, kap)``; and the contraction
 ``C(c)^abgd T_gd = c [Ai tr(Ai T) + 2 Ai T Ai]^ab``.
 
-Resultants (Eq. 22, keeping the factor 2 that Eq. 27 omits, see model.md)::
+Resultants (Eq. 22, keeping the factor 2 that Eq. 27 omits, see doc/theory.md section 2)::
 
     N*^ab = dW/d eps_ab = 2 Phi eps + Theta kap
     M^ab  = dW/d kap_ab = 2 Psi kap + Theta eps

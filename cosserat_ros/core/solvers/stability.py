@@ -4,7 +4,7 @@ The highest angular frequency omega_max of the system linearised at a state is f
 Lanczos iteration on ``M^-1/2 K M^-1/2`` (``K v`` from central differences of the internal
 force), and the damped symplectic Euler limit (:func:`stability_limit`) is applied. For
 membranes omega_max ~ 2 c / h (c = sqrt(6 zeta / mu)), giving the rule of thumb
-``dt <~ 0.8 h / c`` of model.md section 7; bending adds ~ sqrt(D / mu) (k / h)^2 on fine
+``dt <~ 0.8 h / c`` of doc/theory.md section 7; bending adds ~ sqrt(D / mu) (k / h)^2 on fine
 meshes. The critical dt is ``CRITICAL_DT_SAFETY`` (0.8) times that linear limit, because
 strained states pump energy into the highest modes near it (constants.py has the
 measurement).

@@ -1,7 +1,7 @@
 """The energy terms of the discrete Cosserat surface, one module each.
 
 The internal force is minus the gradient of the discrete energy
-``E = E_membrane + E_bending + E_coupling`` (model.md section 5, the variational route):
+``E = E_membrane + E_bending + E_coupling`` (doc/theory.md section 5, the variational route):
 
 ==================  ======================================================================
 module              term

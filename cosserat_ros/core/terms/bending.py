@@ -1,6 +1,6 @@
 """Bending term: per-vertex curvature change from the cubic jet, with hourglass control.
 
-Energy (seed Eq. 18-19 with Psi = C(xi); model.md section 2)
+Energy (seed Eq. 18-19 with Psi = C(xi); doc/theory.md section 2)
 --------------------------------------------------------------
 ``E_b = sum_i A_i xi B(kap_i, kap_i) + sum_i om_i sum_k (rho_k . n_i - sigma_k)^2``
 

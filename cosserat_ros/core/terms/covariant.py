@@ -4,7 +4,7 @@ Per vertex, from the jet geometry (:mod:`..geometry`) and vertex strains ``eps =
 ``kap = -(b - B)``:
 
 * ``N* = 2 Phi eps + Theta kap``, ``M = 2 Psi kap + Theta eps`` (Eq. 27 with the factor 2,
-  model.md section 2);
+  doc/theory.md section 2);
 * ``N^ab = N*^ab - M^bg a^ad b_dg`` and ``N^3b = M^ba|_a`` (Eq. 28, the covariant derivative
   of Eq. 15 with least-squares partial derivatives);
 * force vectors ``N^b = N^ab a_a + N^3b a_3`` (Eq. 26);

@@ -9,13 +9,13 @@ Energy
     eps_t = (F_t^T F_t - I) / 2                        (Green strain, Eq. 17)
     W_m   = zeta B(eps, eps) = zeta [tr(eps)^2 + 2 eps:eps]
 
-A per-triangle strain sees every in-plane mode (model.md section 7: collocated vertex
+A per-triangle strain sees every in-plane mode (doc/theory.md section 7: collocated vertex
 gradients are blind to the checkerboard), so the membrane has no hourglass mode.
 
 Gradient
 --------
 With the stress times area ``S_t = area_t N*_t``, ``N* = dW/deps = 2 zeta (tr(eps) I +
-2 eps)`` (Eq. 22, the factor 2 kept: model.md section 2), the corner gradients are
+2 eps)`` (Eq. 22, the factor 2 kept: doc/theory.md section 2), the corner gradients are
 
     [g_1 g_2] = F_t S_t Dinv_t^T,   g_0 = -g_1 - g_2            (dE_m/dx at the corners)
 
