@@ -12,7 +12,7 @@ BENCH_STAMP := $(VENV)/.bench-installed
 PKG_SOURCES := $(shell find cosserat_ros config resource launch rviz -type f -not -path '*/__pycache__/*' 2>/dev/null) setup.py setup.cfg package.xml
 PARAMS ?= config/cloth.yaml
 
-.PHONY: install run view test docs validate bench clean
+.PHONY: install run view test docs lint validate bench clean
 
 install: $(PKG_STAMP)
 
@@ -50,8 +50,12 @@ view: $(PKG_STAMP) $(VIZ_STAMP)
 	$(ENV) $(VENV)/lib/cosserat_ros/cloth_node --ros-args --params-file $(PARAMS) \
 	    -p foxglove.port:=$(VIEW_PORT)
 
-test: $(PKG_STAMP) docs
+test: $(PKG_STAMP) lint docs
 	$(ENV) $(VENV)/bin/pytest -q --durations=20 test
+
+# ruff over the whole tree (ruff.toml)
+lint: $(DEPS_STAMP)
+	$(VENV)/bin/ruff check .
 
 # the manual (doc/, the layout rosdoc2 builds) into build/doc, warnings as errors
 docs: $(DEPS_STAMP)

@@ -3,7 +3,6 @@
 (test_batch_ray.py runs the same episodes on real Ray instances and clusters.)"""
 import hashlib
 import json
-import os
 from pathlib import Path
 import subprocess
 import sys

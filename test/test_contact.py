@@ -975,7 +975,8 @@ def test_a_post_thinner_than_the_cloths_triangles_does_not_poke_through(solver):
 
 def test_a_cloth_over_a_round_table_and_the_weight_it_puts_on_it():
     """A 12 x 12 cloth of 1 m dropped onto a round table (a cylinder of radius 0.3 m and
-    4 cm thick, damping 1.0 to settle in 5 s) hangs over its rim without the rim cutting into its triangles (before the
+    4 cm thick, damping 1.0 to settle in 5 s) hangs over its rim without the rim cutting into
+    its triangles (before the
     cylinder's corners and edges it went 7 mm in at 40 x 40), and the table and the
     ground carry its weight."""
     sim = _sim(12, 1.0, material=Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2,

@@ -58,7 +58,8 @@ def held():
 
 def test_stamped_targets_streamed_ahead_are_reached_each_on_time(held):
     """Twelve targets on a circle (0.2 m/s), stamped 0.5-1.6 s of sim time ahead and sent
-    at once (all kept: none lost to a shallow reader queue): the handle is at each when sim time first reaches its stamp, within one
+    at once (all kept: none lost to a shallow reader queue): the handle is at each when sim
+    time first reaches its stamp, within one
     step's motion, and nothing is refused. Logged after every compiled call (the
     handles' settle)."""
     h, target, rejections, hid, corner = held

@@ -93,7 +93,8 @@ class Control(NamedTuple):
         contact = np.tile(NO_CONTACT, (n, 1))
         return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(AIR_WIDTH),
                    np.zeros((faces, 3)), np.zeros(3), np.zeros(n, dtype=bool),
-                   np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)), np.zeros(0),
+                   np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, WIDTH)), np.zeros((0, 8)),
+                   np.zeros(0),
                    np.array([float(thickness)]), contact)
 
     def with_obstacles(self, obstacles: np.ndarray, sdf_meta: np.ndarray,

@@ -8,7 +8,8 @@ CPU for a time slice now and then, and the others wait at the barrier until it c
 the busy process shares). On a 2-core host at 40 x 40, two threads were 1.9-2.0 times slower
 than alone beside one busy process and 2.0-2.6 times beside two; one thread, which waits
 for nobody, 1.8-1.9 and 2.7 times slower than two alone (docs/performance.md, "A busy
-machine"): the faster count changes with the load and from run to run. Which count is faster depends on the load, so it is measured, not
+machine"): the faster count changes with the load and from run to run. Which count is faster
+depends on the load, so it is measured, not
 guessed: :class:`ThreadTuner` runs each count once, then the faster, and the other once
 every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load both ways. A
 measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial (the rest of

@@ -81,7 +81,8 @@ def _vertex_pass(x, lanes, plan, faces, vf, vertices, coeff, work, coupled):
         while c >= 0:
             vertex_chunk(c, nch, c, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
                          ln_w, ln_uv, ln_sigma, sp_P, sp_entry, sp_ebar0, stab, dual_area, ainv,
-                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face, vf_ptr,
+                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face,
+                         vf_ptr,
                          vf_face, vf_corner, vf_entry, vf_K, fc_vert, t_dinv, t_area, zeta, fc_ptr,
                          fc_tpl, fc_slot, fgrad, coupled)
             c, k = claim(share, t, nr, k)
@@ -419,7 +420,8 @@ def _vertex_parts(x, v, lanes, plan, faces, vf, vertices, tr_ptr, control, coeff
         for ch in range(tile_ch[t], tile_ch[part_tile[p + 1]]):
             vertex_chunk(ch, nch, row, x, g_vert, g_ptr, g_wptr, s_vert, s_ptr, s_wptr, ln_idx,
                          ln_w, ln_uv, ln_sigma, sp_P, sp_entry, sp_ebar0, stab, dual_area, ainv,
-                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face, vf_ptr,
+                         rest_b, xi, phi, scratch, contrib, corners, dinv, face_area, K_face,
+                         vf_ptr,
                          vf_face, vf_corner, vf_entry, vf_K, fc_vert, t_dinv, t_area, zeta, fc_ptr,
                          fc_tpl, fc_slot, fgrad, coupled)
             if ch + 1 == tile_ch[t + 1]:

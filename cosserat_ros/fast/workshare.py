@@ -226,7 +226,8 @@ def arrive(sync, k, n):
     A waiting thread spins ``sync[3]`` reads of the count (:data:`SPIN`, set by the
     solver), each with the spin-wait hint (:func:`relax`), then sleeps on a futex of the
     count's low 32 bits, ``sync[2]`` counting the sleepers, until the last arrival wakes
-    them (on Linux; elsewhere it spins). Returns how many times the thread slept. Why: on a shared machine the thread it
+    them (on Linux; elsewhere it spins). Returns how many times the thread slept. Why: on a
+    shared machine the thread it
     waits for may have been taken off its CPU for a time slice (ms); a spinning waiter
     holds its own CPU meanwhile, a sleeping one frees it, and the scheduler can run the
     late thread there (docs/performance.md, "A busy machine"). The last arrival adds to

@@ -80,7 +80,8 @@ from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
 from .cameras import CameraStreams, camera_specs
 from .pacing import Pacer
 from .params import (AIR_KEYS, CAMERA_KEYS, check_choice, check_dt, COLORINGS, ConfigError,
-                     HANDLE_KEYS, MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME, OBSTACLE_KEYS,
+                     HANDLE_KEYS, MATERIAL_KEYS, MIN_DT, node_sections, OBSERVER_RUNTIME,
+                     OBSTACLE_KEYS,
                      PARAMETERS, params_files, pin_set,
                      RUNTIME_FLOATS, unknown_parameters, vec3, wind as checked_wind)
 

@@ -35,7 +35,8 @@ from .params import (AIR_KEYS, CAMERA_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE
                      vec3, wind)
 
 __all__ = ['check_parameters', 'build_mesh', 'initial_material', 'build_air',
-           'Settings', 'checked_settings', 'apply_settings', 'build_simulator', 'resolve_path', 'flatten', 'params_file_tree',
+           'Settings', 'checked_settings', 'apply_settings', 'build_simulator', 'resolve_path',
+           'flatten', 'params_file_tree',
            'read_params_file', 'NODE_NAME']
 
 #: the node name a params file written here is for

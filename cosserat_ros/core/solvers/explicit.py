@@ -196,7 +196,8 @@ class ExplicitSolver:
             fs.x[:] = x
             fs.v[:] = 0.0
             run = _fast.run_region_coupled if coupled else _fast.run_region
-            run(1, fs, self._force_control, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
+            run(1, fs, self._force_control, coeff, m.faces, m.vertex_faces, m.vertices,
+                m.jets.tr_ptr,
                 self.lanes, self.plan, self.work, 0.0, np.inf, nthr)
             out[:] = self.work.force
             return

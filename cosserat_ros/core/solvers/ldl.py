@@ -162,7 +162,8 @@ def symmetric_lu(a):
 class LDLFactor:
     """``P = Pc L D L^T Pc^T`` from SuperLU's factor ``lu`` (``scipy.sparse.linalg.
     splu`` of a symmetric positive definite P in symmetric mode without pivoting,
-    :func:`symmetric_lu`; the module docstring). Raises ``ValueError`` where the factor is not of that form (rows
+    :func:`symmetric_lu`; the module docstring). Raises ``ValueError`` where the factor is not
+    of that form (rows
     and columns permuted apart: SuperLU pivoted, on a zero diagonal)."""
 
     def __init__(self, lu):
