@@ -12,7 +12,7 @@ from cosserat_ros.core import compiled
 
 def test_every_file_that_can_hold_a_kernel_is_hashed():
     files = compiled.kernel_sources()
-    for name in ('core/terms/jet.py', 'core/solvers/update.py', 'fast/step.py',
+    for name in ('core/terms/jet.py', 'core/update.py', 'fast/step.py',
                  'fast/lanes.py', 'core/compiled.py'):
         assert name in files
     assert not any('__pycache__' in f for f in files)
@@ -45,7 +45,7 @@ _SIGNATURES = """
 import json, sys
 import numpy as np
 from cosserat_ros.core import energy, warmup
-from cosserat_ros.core.solvers.update import contact_range
+from cosserat_ros.core.update import contact_range
 from cosserat_ros.core.terms import jet
 from cosserat_ros.fast import step
 from cosserat_ros.mesh import grid_mesh
@@ -263,7 +263,7 @@ def test_refcount_false_compiles_without_reference_counting(tmp_path):
 def test_the_per_vertex_kernels_count_no_references():
     # the kernels called once per vertex, pair, tile or lane group from the step's loops
     from cosserat_ros.core import contact
-    from cosserat_ros.core.solvers import update
+    from cosserat_ros.core import update
     from cosserat_ros.core.terms import jet
     from cosserat_ros.fast import lanes, step
     for k in (update.contact_range, update.contact_list, contact.resolve, contact.push_out,

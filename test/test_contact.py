@@ -425,7 +425,7 @@ def test_a_cloth_resting_on_the_ground_dissipates_nothing():
     (core/contact.py). Counting the kinetic energy alone drifted by M g^2 dt / 2 a second
     (here 3.3e-4 J over the second; now 8e-21 J). Pressed by an applied force too: the
     update counts its work over the step's displacement before contact, which the
-    contact takes back (core/solvers/update.py ``contact_vertex``)."""
+    contact takes back (core/update.py ``contact_vertex``)."""
     for press in (0.0, 1e-3):            # and pressed down by an applied force [N/vertex]
         sim = _sim(10, 0.3)
         sim.add_obstacle('plane', friction=0.4)

@@ -605,3 +605,17 @@ def test_state_tuples_copy_and_assign():
     assert s.x[0, 0] == 1.0
     s.assign(c)
     assert s.x[0, 0] == 5.0 and s.x is not c.x
+
+
+def test_the_fast_passes_import_no_solver():
+    # layering (issue 57): core/solvers/explicit.py drives fast/, which calls the update of
+    # core/update.py; fast/ imports nothing from core/solvers, so the two never import
+    # each other
+    import ast
+    here = os.path.dirname(fast_step.__file__)
+    for name in sorted(os.listdir(here)):
+        if name.endswith('.py'):
+            tree = ast.parse(open(os.path.join(here, name)).read())
+            for node in ast.walk(tree):
+                if isinstance(node, ast.ImportFrom):
+                    assert 'solvers' not in (node.module or ''), (name, node.module)

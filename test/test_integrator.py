@@ -1,4 +1,4 @@
-"""The explicit update (``core/solvers/update.py``) alone, against closed-form solutions of
+"""The explicit update (``core/update.py``) alone, against closed-form solutions of
 its own discrete map: free fall under gravity, a single-DOF oscillator with and without
 damping, and the energy bookkeeping; the internal force is supplied by the test."""
 import numpy as np

@@ -25,7 +25,7 @@ in n), moving with the mean velocity ``v_t`` of its three corners through air of
   (they are quadratic in u), and a degenerate triangle (``A_t = 0``) feels nothing.
 
 The force is not conservative and is not an energy term (``core/terms``): it depends on
-the velocities. In the explicit update (``core/solvers/update.py``) it is part of the
+the velocities. In the explicit update (``core/update.py``) it is part of the
 applied force ``Control.f_applied``, so its work is counted as external work
 (``State.acc``): drag in still air removes energy, wind puts it in. Its velocity
 derivative is at most ``rho C |u| A_t`` per triangle (``rho (C_D + C_L) |u| / rho_s`` per

@@ -55,7 +55,7 @@ what the contact balances; in a resting contact the two cancel, in a collision w
 force the first is what is lost). The obstacle's work on the cloth, the kinetic energy's
 change less the first, is external work (``State.acc``), so the energy balance of the
 report still closes, at rest too (with the update's own ledger corrected to the
-displacement after contact: :func:`.solvers.update.contact_vertex`).
+displacement after contact: :func:`.update.contact_vertex`).
 
 Obstacles placed through the cloth
 ----------------------------------

@@ -61,7 +61,7 @@ def totals(dens, dual_area, force, f_applied, mass, damp, v, x, pinned, gravity,
     * ``out[0:3]`` = sum_i A_i dens_i: the stretching, bending and coupling energy [J];
     * ``out[3]`` = kinetic energy 1/2 sum_i m_i |v_i + dt/2 a_i|^2 of the leapfrog velocity
       carried to the positions' time, with ``m_i a_i = f_i + f_applied_i + m_i g - c_i v_i``
-      (the step's acceleration, ``solvers/update.py``); at a pinned or held vertex
+      (the step's acceleration, ``update.py``); at a pinned or held vertex
       1/2 m_i |v_i|^2, its prescribed velocity (0 for a pin);
     * ``out[4]`` = -sum_i m_i g . x_i, the gravity potential [J].
 

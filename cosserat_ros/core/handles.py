@@ -15,7 +15,7 @@ path: the simulator splits a step(n) into calls that each turn a handle by at mo
 :data:`MAX_TURN` and end at the first step that reaches a waypoint (a handle is at a
 waypoint on time within one step).
 
-Reaction (``core/solvers/update.py``): a held vertex of mass m, with internal, applied,
+Reaction (``core/update.py``): a held vertex of mass m, with internal, applied,
 gravity and damping forces f and velocity v_old, gets the prescribed velocity u; the
 force the handle exerts on it over the step is what the update needs beyond f::
 

@@ -172,7 +172,7 @@ def _compile(tiled: bool, coupled: bool):
                                                    density=0.2, damping=0.1),
                          dt=1e-5, check_dt=False)
     # the contact pass, which every step calls (a kernel of its own, int64 bounds)
-    from .solvers.update import contact_range
+    from .update import contact_range
     contact_range(np.int64(0), np.int64(0), sim.state.x, sim.state.v,
                   np.zeros((sim.n_vertices, 3)), sim.control, sim.coefficients, sim.dt)
     # the report's own kernels (its internal force is the step's, which the node compiles)

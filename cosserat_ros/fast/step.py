@@ -10,7 +10,7 @@ set (``core/compiled.py``), no allocation:
    gradients;
 2. the gather (every vertex's -dE/dx from its faces' corner gradients and the stencil
    gradients of the vertices whose jets hold it) and the update
-   (``core.solvers.update.advance_vertex``).
+   (``core.update.advance_vertex``).
 
 Both passes share their work between the threads (:mod:`.workshare`): each thread runs
 its own equal run of items first, then takes the others' remaining items from their far
@@ -32,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from ..core.compiled import kernel
-from ..core.solvers.update import advance_vertex, contact_list, contact_range
+from ..core.update import advance_vertex, contact_list, contact_range
 from ..core.air import air_faces, air_gather, air_pass
 from .lanes import vertex_chunk
 from .workshare import arrive, claim, split

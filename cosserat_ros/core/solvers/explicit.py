@@ -27,7 +27,7 @@ from ..compiled import kernel
 from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
 from ..terms import covariant, TERMS
 from ..state import Control, State
-from .update import advance_vertex, contact_range
+from ..update import advance_vertex, contact_range
 
 __all__ = ['ExplicitSolver', 'reference_step', 'DIVERGENCE_METHODS', 'steps_tiled']
 

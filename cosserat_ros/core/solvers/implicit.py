@@ -130,7 +130,7 @@ from ..terms.jet import model_scratch
 from ..terms.membrane import add_compression_product, compressed_faces, compression_stress
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
 from .ldl import LDLFactor, solve_pair, symmetric_lu
-from .update import contact_list
+from ..update import contact_list
 from .vectors import (cg_update, direction, dot, fd_product, from_frames, inertia_energy,
                       inertia_residual, residual_measure, to_frames)
 

@@ -24,7 +24,7 @@ Every term module exposes, for a :class:`..model.Model`, its
 ``test/test_terms.py`` checks each against central differences of its own energy
 (gradient) and of its own gradient (blocks). To add a physical effect: a new module
 with these three functions, one line in :data:`TERMS`, and, for the compiled step, a call
-where ``core/solvers/update.py`` says (per-vertex effects) or in the step's face loop.
+where ``core/update.py`` says (per-vertex effects) or in the step's face loop.
 """
 from . import bending, coupling, membrane
 

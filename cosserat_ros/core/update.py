@@ -38,8 +38,8 @@ import math
 
 import numba as nb
 
-from ..compiled import kernel
-from ..contact import ALL, C_WIDTH, NO_CONTACT, near_mask, push_out, released, resolve
+from .compiled import kernel
+from .contact import ALL, C_WIDTH, NO_CONTACT, near_mask, push_out, released, resolve
 
 __all__ = ['advance_vertex', 'contact_vertex', 'contact_range', 'contact_list']
 
