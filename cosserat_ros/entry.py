@@ -10,7 +10,12 @@ import sys
 __all__ = ['cloth_node', 'record', 'render', 'fold_demo', 'flag_demo', 'batch']
 
 
+#: the signals received while the program's module loads
+_received: list = []
+
+
 def _interrupt(signum, frame):
+    _received.append(signum)
     raise KeyboardInterrupt
 
 
@@ -26,19 +31,24 @@ def _interrupted(exc: BaseException) -> bool:
 
 
 def _run(program: str, module: str) -> int:
-    # SIGTERM during the imports ends the program as SIGINT does (rclpy installs its own
-    # handlers once it is up)
+    # SIGINT and SIGTERM during the imports end the program (rclpy installs its own
+    # handlers once it is up); each is noted too, in case a library's import swallows the
+    # KeyboardInterrupt (a bare ``except:``) and goes on
+    signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     try:
         main = importlib.import_module(module).main
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     except BaseException as exc:
         # a library's import may wrap the interrupt in its own error (rclpy's loader of
         # its C extension raises an AssertionError from it)
-        if not _interrupted(exc):
+        if not (_interrupted(exc) or _received):
             raise
+        main = None
+    if main is None or _received:
         print(f'{program}: interrupted while starting', file=sys.stderr)
         return 130
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     return main()
 
 

@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 
 def _own_domain() -> int:
     """A ROS domain no other test run on this machine holds: the first of 1..100 (from
@@ -109,6 +111,39 @@ def pytest_runtest_setup(item):
             pass
 
 
+def _stop(procs) -> None:
+    """Terminate, then kill what is still running after 10 s."""
+    for p in procs:                    # a chance to clean up first
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(10)
+
+
+def _names(procs) -> str:
+    return ', '.join(str(p.args[0] if isinstance(p.args, (list, tuple)) else p.args)
+                     for p in procs)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    """A process a test's body started and left running (a failed assertion or a timeout
+    before its clean-up) is stopped when the test ends, not at the session's: a node left
+    on the run's ROS domain would answer the next tests' subscriptions (seen: a node that
+    ignored a Ctrl-C while starting failed ten later tests). Fixtures' processes, started
+    in the set-up, are not touched."""
+    before = len(_Tracked.started)
+    yield
+    left = [p for p in _Tracked.started[before:] if p.poll() is None]
+    if left:
+        _stop(left)
+        print(f'\nconftest: stopped {len(left)} process(es) {item.name} left running: '
+              + _names(left))
+
+
 def pytest_sessionfinish(session, exitstatus):
     if _precompile is not None and _precompile.poll() is None:
         _precompile.terminate()
@@ -117,15 +152,7 @@ def pytest_sessionfinish(session, exitstatus):
         except subprocess.TimeoutExpired:
             _precompile.kill()
     left = [p for p in _Tracked.started if p is not _precompile and p.poll() is None]
-    for p in left:                     # as for _precompile: a chance to clean up first
-        p.terminate()
-    for p in left:
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(10)
+    _stop(left)
     if left:
-        print(f'\nconftest: stopped {len(left)} process(es) a test left running: '
-              + ', '.join(str(p.args[0] if isinstance(p.args, (list, tuple)) else p.args)
-                          for p in left))
+        print('\nconftest: stopped {} process(es) a test left running: {}'.format(
+            len(left), _names(left)))

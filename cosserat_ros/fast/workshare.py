@@ -82,14 +82,23 @@ def _element_pointer(context, builder, sig, args):
     return cgutils.get_item_pointer(context, builder, sig.args[0], arr, [args[1]])
 
 
-@intrinsic
-def atomic_load(typingctx, a, i):
-    """``a[i]`` of an int64 array, read atomically (acquire)."""
-    _check_state(a)
+def _atomic_load(ordering):
+    """The intrinsic ``a[i]`` of an int64 array, read atomically with ``ordering``."""
+    def load(typingctx, a, i):
+        _check_state(a)
 
-    def codegen(context, builder, sig, args):
-        return builder.load_atomic(_element_pointer(context, builder, sig, args), 'acquire', 8)
-    return types.int64(a, i), codegen
+        def codegen(context, builder, sig, args):
+            return builder.load_atomic(_element_pointer(context, builder, sig, args),
+                                       ordering, 8)
+        return types.int64(a, i), codegen
+    load.__name__ = f'atomic_load_{ordering}'
+    return intrinsic(load)
+
+
+#: ``a[i]`` of an int64 array, read atomically: acquire (enough for the work sharing),
+#: sequentially consistent (the barrier's sleeper handshake, :func:`arrive`)
+atomic_load = _atomic_load('acquire')
+atomic_load_sc = _atomic_load('seq_cst')
 
 
 @intrinsic
@@ -103,16 +112,6 @@ def atomic_cas(typingctx, a, i, old, new):
                               'acq_rel', 'monotonic')
         return builder.extract_value(res, 1)
     return types.boolean(a, i, old, new), codegen
-
-
-@intrinsic
-def atomic_load_sc(typingctx, a, i):
-    """``a[i]`` of an int64 array, read atomically (sequentially consistent)."""
-    _check_state(a)
-
-    def codegen(context, builder, sig, args):
-        return builder.load_atomic(_element_pointer(context, builder, sig, args), 'seq_cst', 8)
-    return types.int64(a, i), codegen
 
 
 @intrinsic
@@ -137,6 +136,8 @@ def futex(typingctx, a, i, op, val):
 
     def codegen(context, builder, sig, args):
         i64 = ir.IntType(64)
+        if not _SYS_FUTEX:              # no futex here: nothing to link to (never called)
+            return ir.Constant(i64, -1)
         fn = cgutils.get_or_insert_function(builder.module,
                                             ir.FunctionType(i64, [i64], var_arg=True),
                                             'syscall')
