@@ -41,9 +41,9 @@ shot). Air density at sea level and 15 C: 1.225 kg/m^3 (ISO 2533 standard atmosp
 Layout: ``Control.air`` (:data:`AIR_WIDTH`,) = (on, 1/2 rho C_D, 1/2 rho C_L, w_x, w_y,
 w_z); each step, before the update, :func:`air_faces` writes each face's force to
 ``Control.air_face`` (m,3) and :func:`air_gather` each vertex's ``f_applied = f_external
-+ f_air`` (a third of its faces'): one evaluation per face. With air off ``Control.f_applied``
-is ``Control.f_external``
-and no step computes anything here. This module imports no ROS package.
++ f_air`` (a third of its faces'): one evaluation per face. With air off
+``Control.f_applied`` is ``Control.f_external`` and no step computes anything here. This
+module imports no ROS package.
 """
 from __future__ import annotations
 

@@ -10,10 +10,9 @@
   This changes rounding only; none of the flags that assume no NaN or infinity (``nnan``,
   ``ninf``) is set, so the NaN checks stay valid, and summation order is kept.
 * :data:`REDUCTION` adds ``reassoc`` for the few stencil sums of the vertex pass (short
-  helper functions in ``core/terms/bending.py``), so that LLVM can split them over SIMD lanes.
-  It changes
-  the summation order of those sums only (results move by ~1e-15 relative, and stay
-  deterministic); a NaN or inf still propagates.
+  helper functions in ``core/terms/bending.py``), so that LLVM can split them over SIMD
+  lanes. It changes the summation order of those sums only (results move by ~1e-15
+  relative, and stay deterministic); a NaN or inf still propagates.
 
 Indices in the hot loops are cast to ``nb.uint64`` before they index an array (and loop
 ranges over index arrays run over unsigned bounds): through a signed index numba adds its

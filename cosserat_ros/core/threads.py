@@ -5,15 +5,13 @@ Why: the parallel step (``fast/step.py``, one parallel region per call) meets it
 at a barrier a few times per step. On a shared machine the OS takes one of them off its
 CPU for a time slice now and then, and the others wait at the barrier until it comes back
 (they sleep after a short spin, ``fast/workshare.arrive``, so they no longer burn the CPU
-the busy process shares). On a 2-core host at 40 x 40, two threads were 1.9-2.0 times slower
-than alone beside one busy process and 2.0-2.6 times beside two; one thread, which waits
-for nobody, 1.8-1.9 and 2.7 times slower than two alone (docs/performance.md, "A busy
-machine"): the faster count changes with the load and from run to run. Which count is faster
-depends on the load, so it is measured, not
-guessed: :class:`ThreadTuner` runs each count once, then the faster, and the other once
-every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load both ways. A
-measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial (the rest of
-the call at the best), so that trying a count that has become slow costs little.
+the busy process shares), while one thread waits for nobody. Which count is faster
+depends on the load and changes from run to run (docs/performance.md, "A busy machine"),
+so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the faster,
+and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load
+both ways. A measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial
+(the rest of the call at the best), so that trying a count that has become slow costs
+little.
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.

@@ -76,9 +76,9 @@ def _take_lock(path: str) -> bool:
 def start(tiled: bool = False, coupled: bool = True) -> Optional[subprocess.Popen]:
     """Start :func:`main` in a background process if the cache is cold and no other
     warm-up is running; ``tiled``: the node's mesh steps tiled; ``coupled``: its material
-    has a coupling (phi != 0). Returns the process (or None). It runs the package this process
-    imported (its parent directory as the working
-    directory, which ``-m`` puts first on the path), with the same environment (so the same
+    has a coupling (phi != 0). Returns the process (or None). It runs the package this
+    process imported (its parent directory as the working directory, which ``-m`` puts
+    first on the path), with the same environment (so the same
     ``NUMBA_CACHE_DIR``), and its output goes nowhere: a caller that reads this process's
     pipes must not wait for it. It ends with this process (:func:`_end_with_parent`): a
     node stopped during its cold start leaves no compiler behind on a core (one did, and

@@ -52,11 +52,10 @@ position and grip 0/1), ``wrenches`` (k, 6: force [N] and torque [N m] about the
 on the cloth), all float32. ``'keypoints'``: ``keypoints`` (8, 3), the four corners and
 the four edge midpoints, and ``pickers``. ``'depth'``: ``depth`` (h, w, 1) float32 [m]
 of a top-down camera (:class:`~cosserat_ros.camera.Camera`) :data:`CAMERA_HEIGHT` above
-the origin seeing the workspace about it (+-1.05 cloth_size), the camera's far distance where
-nothing is seen; ``'rgbd'``:
-``rgb`` (h, w, 3) uint8 and ``depth``. ``camera_size`` (default 64) is h = w. Every call
-returns fresh arrays. ClothDrop adds ``target`` (2,): the target square's offset [m] from
-the origin (the start does not show it).
+the origin seeing the workspace about it (+-1.05 cloth_size), the camera's far distance
+where nothing is seen; ``'rgbd'``: ``rgb`` (h, w, 3) uint8 and ``depth``. ``camera_size``
+(default 64) is h = w. Every call returns fresh arrays. ClothDrop adds ``target`` (2,): the
+target square's offset [m] from the origin (the start does not show it).
 
 Reproducibility
 ---------------

@@ -51,7 +51,8 @@ class Work(NamedTuple):
     part: np.ndarray        # (nch, 3) the update's work, dissipation, bad per chunk
     force: np.ndarray       # (n, 3) the internal force of the last step
     ushare: np.ndarray      # (T+1,) int64 the update's work-sharing state (run_region)
-    sync: np.ndarray        # (3,) int64 run_region's barrier count, the steps done, sleepers
+    sync: np.ndarray        # (4,) int64 run_region's barrier: count, steps done, sleepers,
+                            # spins before sleeping (workshare.arrive)
 
 
 @kernel(inline='always')

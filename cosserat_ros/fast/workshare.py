@@ -64,11 +64,9 @@ _FUTEX_WAKE = 129           # FUTEX_WAKE | FUTEX_PRIVATE_FLAG
 _WAKE_ALL = 0x7FFFFFFF
 
 #: spins (reads of the count, each with :func:`relax`) a thread waits at :func:`arrive`
-#: before it sleeps: a few microseconds. Measured at 40 x 40 on 2 threads (2-core AMD
-#: EPYC, docs/performance.md "A busy machine"): from 100 to 30000 spins the same speed
-#: alone (0.353-0.359 ms a step), 0 spins 4% slower; beside busy processes 30-300 spins
-#: fastest (0.72 ms a step beside one, 0.71-0.75 beside two) and 3e4 two to three times
-#: slower, spinning without end (the barrier before) 0.98 and 7.8 ms.
+#: before it sleeps: a few microseconds, chosen by measurement (docs/performance.md,
+#: "Barriers that sleep": no slower alone than spinning longer, fastest beside busy
+#: processes)
 SPIN = 200
 
 
@@ -227,15 +225,14 @@ def arrive(sync, k, n):
     A waiting thread spins ``sync[3]`` reads of the count (:data:`SPIN`, set by the
     solver), each with the spin-wait hint (:func:`relax`), then sleeps on a futex of the
     count's low 32 bits, ``sync[2]`` counting the sleepers, until the last arrival wakes
-    them (on Linux; elsewhere it spins). Returns how many times the thread slept. Why: on a
-    shared machine the thread it
-    waits for may have been taken off its CPU for a time slice (ms); a spinning waiter
-    holds its own CPU meanwhile, a sleeping one frees it, and the scheduler can run the
-    late thread there (docs/performance.md, "A busy machine"). The last arrival adds to
-    the count, then reads the sleepers; a sleeper adds to the sleepers, then reads the
-    count, and the futex sleeps only if the count is still what it read: with both in
-    one sequentially consistent order, either the sleeper sees the count complete or the
-    last arrival sees the sleeper and wakes it, so no wake-up is lost."""
+    them (on Linux; elsewhere it spins). Returns how many times the thread slept. Why: on
+    a shared machine the thread it waits for may have been taken off its CPU for a time
+    slice (ms); a spinning waiter holds its own CPU meanwhile, a sleeping one frees it, and
+    the scheduler can run the late thread there (docs/performance.md, "A busy machine"). The
+    last arrival adds to the count, then reads the sleepers; a sleeper adds to the sleepers,
+    then reads the count, and the futex sleeps only if the count is still what it read: with
+    both in one sequentially consistent order, either the sleeper sees the count complete or
+    the last arrival sees the sleeper and wakes it, so no wake-up is lost."""
     target = k * n
     spin = sync[3]
     if atomic_add(sync, 0, 1) + 1 >= target:

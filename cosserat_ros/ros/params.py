@@ -1,10 +1,10 @@
 """The node's parameters: declarations, defaults, and validation as pure functions.
 
 :data:`PARAMETERS` is the one source of truth for every parameter's name, default, range
-and description (the manual's table, doc/node.md, is generated from it). The validators here
-take values and
-return values or raise :class:`ConfigError` with a one-line reason; nothing in this module
-touches a node or a simulator, so they are tested without spinning anything.
+and description (the manual's table, doc/node.md, is generated from it). The validators
+here take values and return values or raise :class:`ConfigError` with a one-line reason;
+nothing in this module touches a node or a simulator, so they are tested without spinning
+anything.
 """
 from __future__ import annotations
 

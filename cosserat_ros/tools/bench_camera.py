@@ -11,8 +11,8 @@
   and the cost per megapixel;
 * the node: the installed ``cloth_node`` on ``config/cloth.yaml`` without a camera and
   with one 640 x 480 camera at 15 Hz, alternated over three rounds (after one unmeasured
-  start that warms the compile caches), each watched for the same time: the real-time factors
-  and their ratio (target >= 0.95).
+  start that warms the compile caches), each watched for the same time: the real-time
+  factors and their ratio (target >= 0.95).
 """
 from __future__ import annotations
 

@@ -6,14 +6,13 @@ node's ``~/wind`` topic, and measure how it flies.
 Streams :func:`gust` on ``~/wind`` for ``--duration`` seconds of simulation time, one
 message per 1/30 s of simulation time, each stamped with the simulation time it is for
 and sent when the node's ``/clock`` reaches it (its node has ``use_sim_time``), so the
-sequence is the same at any real-time factor; then checks the flag: its free edge (the vertices
-furthest from the
-pole) must have flown out downwind (mean distance from the pole above half the flag's
-length) and fluttered (the free edge's sideways position varying by more than 2 cm over
-the last half of the run). Prints what it measured; exit 0 if it flew, 1 if not or if the
-node refused a message (its reason printed), 2 if the node is not there. Needs
-``air.enabled: true``, ``publish.points: true`` and ``publish_clock: true`` (flag.yaml has
-them).
+sequence is the same at any real-time factor; then checks the flag: its free edge (the
+vertices furthest from the pole) must have flown out downwind (mean distance from the pole
+above half the flag's length) and fluttered (the free edge's sideways position varying by
+more than 2 cm over the last half of the run). Prints what it measured; exit 0 if it flew, 1
+if not or if the node refused a message (its reason printed), 2 if the node is not there.
+Needs ``air.enabled: true``, ``publish.points: true`` and ``publish_clock: true`` (flag.yaml
+has them).
 
 Why gusts: the air model (``core/air.py``) is local, each triangle pushed by its own
 relative velocity, with no wake, so in a steady wind a flag settles into a steady shape,

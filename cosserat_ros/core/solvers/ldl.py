@@ -163,8 +163,7 @@ class LDLFactor:
     """``P = Pc L D L^T Pc^T`` from SuperLU's factor ``lu`` (``scipy.sparse.linalg.
     splu`` of a symmetric positive definite P in symmetric mode without pivoting,
     :func:`symmetric_lu`; the module docstring). Raises ``ValueError`` where the factor is not
-    of that form (rows
-    and columns permuted apart: SuperLU pivoted, on a zero diagonal)."""
+    of that form (rows and columns permuted apart: SuperLU pivoted, on a zero diagonal)."""
 
     def __init__(self, lu):
         if not np.array_equal(lu.perm_r, lu.perm_c):

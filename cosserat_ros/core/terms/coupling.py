@@ -26,8 +26,8 @@ Gradient
 Hessian blocks
 --------------
 ``E_c`` is a cross term: its Hessian in the strains ``(epsbar, kap)`` is
-``A_i phi [[0, Q], [Q, 0]]`` (``B(e, k) = e^T Q k``, evaluated as :func:`..material.bilinear`),
-indefinite, with positive part
+``A_i phi [[0, Q], [Q, 0]]`` (``B(e, k) = e^T Q k``, evaluated as
+:func:`..material.bilinear`), indefinite, with positive part
 ``A_i phi / 2 [[Q, Q], [Q, Q]]``. With ``J_e, J_k`` the Jacobians of ``epsbar_i`` and
 ``kap_i`` in x_j (Gauss-Newton: the normal held fixed, ``dkap = -W_k,ab n . dx``), the block
 is ``A_i phi / 2 (J_e + J_k)^T Q (J_e + J_k)``, positive semi-definite (``psd=True``); with
