@@ -1,5 +1,6 @@
-"""The manual (doc/, built by ``make docs``) against the code: the parameter table is
-generated from the node's declarations, the README stays the short front door."""
+"""The manual (doc/, built by ``make docs``) against the code: the parameter and topic
+tables are generated from the node's declarations, the README stays the short front
+door."""
 import os
 import re
 import sys
@@ -9,7 +10,8 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, os.path.join(ROOT, 'doc', '_ext'))
 
 from cosserat_ros.ros.params import PARAMETERS  # noqa: E402
-from parameters_page import parameters_table  # noqa: E402
+from cosserat_ros.ros.interfaces import INTERFACES  # noqa: E402
+from parameters_page import interfaces_table, parameters_table  # noqa: E402
 
 
 def test_the_parameter_page_lists_every_declared_parameter_and_no_other():
@@ -22,6 +24,20 @@ def test_the_parameter_page_lists_every_declared_parameter_and_no_other():
         assert ('| no |' if desc.read_only else '| yes |') in row
     node = open(os.path.join(ROOT, 'doc', 'node.md')).read()
     assert '```{include} generated/parameters.md' in node
+
+
+def test_the_topic_page_lists_every_declared_interface_and_no_other():
+    """The topics and services table is generated from ros/interfaces.py (which
+    test_params_refused.py holds against a running node's graph)."""
+    table = interfaces_table()
+    names = re.findall(r'^\| `([^`]+)` \|', table, flags=re.M)
+    assert names == [i.name for i in INTERFACES]
+    for i in INTERFACES:
+        row = next(line for line in table.splitlines() if line.startswith(f'| `{i.name}` |'))
+        assert f'`{i.type}`' in row
+    node = open(os.path.join(ROOT, 'doc', 'node.md')).read()
+    assert '```{include} generated/interfaces.md' in node
+    assert '| `~/mesh` |' not in node                  # no hand-written table beside it
 
 
 def test_every_page_is_in_the_table_of_contents():

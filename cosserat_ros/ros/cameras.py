@@ -38,8 +38,8 @@ import numpy as np
 from ..camera import Camera
 from .params import CAMERA_KEYS, ConfigError
 
-__all__ = ['CAMERA_KEYS', 'MAX_CAMERAS', 'PIXEL_BUDGET', 'camera_specs', 'optical_frame',
-           'CameraStreams']
+__all__ = ['CAMERA_KEYS', 'MAX_CAMERAS', 'PIXEL_BUDGET', 'camera_specs', 'declared_cameras',
+           'optical_frame', 'CameraStreams']
 
 #: the most cameras one node serves
 MAX_CAMERAS = 4
@@ -83,6 +83,18 @@ def camera_specs(p: dict) -> Dict[str, dict]:
         raise ConfigError(f'cameras: {pixels:.3g} pixels per second (width x height x rate '
                           f'summed), at most {PIXEL_BUDGET:.3g}: lower a size or a rate')
     return out
+
+
+def declared_cameras(node, p: dict) -> Dict[str, dict]:
+    """The cameras of ``cameras.names`` of ``node``: their parameters declared (read-only)
+    and checked (:func:`camera_specs`); ``p``: the node's values of the declarations."""
+    from .params import CAMERA_KEYS, group_names
+    values = {'cameras.names': group_names('cameras', p['cameras.names']),
+              'publish_rate': p['publish_rate']}
+    for name in values['cameras.names']:
+        for key, value in node._declare_group('cameras', name, CAMERA_KEYS, 'camera').items():
+            values[f'cameras.{name}.{key}'] = value
+    return camera_specs(values)
 
 
 class CameraStreams:

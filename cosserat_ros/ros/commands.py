@@ -206,36 +206,42 @@ def obstacle_markers(msg, frame_id: str):
                                f'(norm {nq:.4g})')
         q = q / nq
         shape = _SHAPES[m.type]
-        if shape == 'mesh':
-            if len(m.points) > MAX_MESH_POINTS:
-                raise CommandError(f'{where}: {len(m.points)} points, at most '
-                                   f'{MAX_MESH_POINTS}')
-            if len(m.points) < 12 or len(m.points) % 3:
-                raise CommandError(f'{where}: a TRIANGLE_LIST needs 3 points per triangle '
-                                   f'and at least 4 triangles, got {len(m.points)} points')
-            pts = np.array([[pt.x, pt.y, pt.z] for pt in m.points])
-            if not np.all(np.isfinite(pts)):
-                raise CommandError(f'{where}: non-finite point')
-            # merge the corners shared by triangles (bit-equal points), as RViz draws them
-            verts, inverse = np.unique(pts, axis=0, return_inverse=True)
-            geometry = {'vertices': verts, 'faces': inverse.reshape(-1, 3)}
-        else:
-            if np.any(s <= 0):
-                raise CommandError(f'{where}: scale must be positive, got {tuple(s)}')
-            if shape == 'sphere':
-                if np.ptp(s) > 1e-9 * s.max():
-                    raise CommandError(f'{where}: a SPHERE needs equal scales (an ellipsoid '
-                                       f'is not supported), got {tuple(s)}')
-                geometry = {'radius': s[0] / 2}
-            elif shape == 'box':
-                geometry = {'half_extents': s / 2}
-            else:
-                if abs(s[0] - s[1]) > 1e-9 * s.max():
-                    raise CommandError(f'{where}: a CYLINDER needs scale.x = scale.y, got '
-                                       f'{tuple(s)}')
-                geometry = {'radius': s[0] / 2, 'half_length': s[2] / 2}
-        ops.append(('add', name, shape, geometry, (p, q)))
+        ops.append(('add', name, shape, _marker_geometry(m, shape, s, where), (p, q)))
     return ops
+
+
+def _marker_geometry(m, shape: str, s: np.ndarray, where: str) -> dict:
+    """The ``add_obstacle`` geometry of marker ``m`` of ``shape`` with scale ``s``
+    (:func:`obstacle_markers`); CommandError naming the marker (``where``) if bad."""
+    if shape == 'mesh':
+        if len(m.points) > MAX_MESH_POINTS:
+            raise CommandError(f'{where}: {len(m.points)} points, at most '
+                               f'{MAX_MESH_POINTS}')
+        if len(m.points) < 12 or len(m.points) % 3:
+            raise CommandError(f'{where}: a TRIANGLE_LIST needs 3 points per triangle '
+                               f'and at least 4 triangles, got {len(m.points)} points')
+        pts = np.array([[pt.x, pt.y, pt.z] for pt in m.points])
+        if not np.all(np.isfinite(pts)):
+            raise CommandError(f'{where}: non-finite point')
+        # merge the corners shared by triangles (bit-equal points), as RViz draws them
+        verts, inverse = np.unique(pts, axis=0, return_inverse=True)
+        geometry = {'vertices': verts, 'faces': inverse.reshape(-1, 3)}
+    else:
+        if np.any(s <= 0):
+            raise CommandError(f'{where}: scale must be positive, got {tuple(s)}')
+        if shape == 'sphere':
+            if np.ptp(s) > 1e-9 * s.max():
+                raise CommandError(f'{where}: a SPHERE needs equal scales (an ellipsoid '
+                                   f'is not supported), got {tuple(s)}')
+            geometry = {'radius': s[0] / 2}
+        elif shape == 'box':
+            geometry = {'half_extents': s / 2}
+        else:
+            if abs(s[0] - s[1]) > 1e-9 * s.max():
+                raise CommandError(f'{where}: a CYLINDER needs scale.x = scale.y, got '
+                                   f'{tuple(s)}')
+            geometry = {'radius': s[0] / 2, 'half_length': s[2] / 2}
+    return geometry
 
 
 def handle_target(msg, frame_id: str):

@@ -41,7 +41,7 @@ from typing import Callable, Dict, Optional
 
 import numpy as np
 
-__all__ = ['LiveView', 'SERVICE_TIMEOUT', 'ENERGY_KEYS', 'SERVICE_TYPES']
+__all__ = ['LiveView', 'open_live_view', 'SERVICE_TIMEOUT', 'ENERGY_KEYS', 'SERVICE_TYPES']
 
 #: each service's ROS type and its request's JSON schema, as the node's own services
 #: (``~/reset`` std_srvs/Trigger, ``~/pause`` std_srvs/SetBool), so that a client fills
@@ -285,3 +285,30 @@ class LiveView:
 
     def close(self) -> None:
         self.server.stop()
+
+
+def open_live_view(node, port: int, host: str) -> LiveView:
+    """The live view of ``node`` (a :class:`.node.ClothNode`) on ``host:port``, its
+    services wired to the node's reset and pause unless it is ``observe_only``; a
+    :class:`.params.ConfigError` with the reason if it cannot open."""
+    from .params import ConfigError
+    if not 0 < port < 65536:
+        raise ConfigError(f'foxglove.port must be in [1, 65535] (0: off), got {port}')
+
+    def pause(args: dict):
+        # a std_srvs/SetBool: {"data": true} pauses, false resumes; anything else (no
+        # data, "false", which is a true string) is refused, not read as a truth value
+        data = args.get('data')
+        if not isinstance(data, bool):
+            return False, f'data must be true or false, got {data!r}'
+        return node.pause(data)
+    handlers = {} if node.observe_only else {'reset': lambda args: node.reset(),
+                                             'pause': pause}
+    try:
+        live = LiveView(port, host, node.get_fully_qualified_name(), handlers)
+    except ImportError as exc:
+        raise ConfigError(str(exc)) from None
+    except Exception as exc:                     # e.g. the port is taken
+        raise ConfigError(f'foxglove.port {port}: {exc}') from None
+    node.get_logger().info(f'live view: open ws://{host}:{live.port} in the Foxglove app')
+    return live

@@ -1,15 +1,18 @@
 """The node's parameters: declarations, defaults, and validation as pure functions.
 
-:data:`PARAMETERS` is the one source of truth for every parameter's name, default, range
-and description (the manual's table, doc/node.md, is generated from it). The validators
+:data:`DECLARATIONS` is the one source of truth for every parameter's name, type,
+default, unit, range, whether it can change at run time, its check and where an accepted
+value goes (:class:`Param`); the node declares, validates and applies its parameters by
+looping over it, and the manual's table (doc/node.md) is generated from it. The validators
 here take values and return values or raise :class:`ConfigError` with a one-line reason;
 nothing in this module touches a node or a simulator, so they are tested without spinning
 anything.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 import math
-from typing import Dict, List, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -18,11 +21,11 @@ from ..core.fabrics import PRESETS
 from ..core.mesh import GRID_PATTERNS
 from ..core.solvers.explicit import DIVERGENCE_METHODS
 
-__all__ = ['PARAMETERS', 'ConfigError', 'COLORINGS', 'PIN_SETS', 'MATERIAL_KEYS', 'AIR_KEYS',
-           'pin_set', 'wind',
-           'pinned_indices', 'vec3', 'check_choice', 'check_dt', 'RUNTIME_FLOATS',
+__all__ = ['PARAMETERS', 'DECLARATIONS', 'Param', 'check_value', 'ConfigError', 'COLORINGS',
+           'PIN_SETS', 'MATERIAL_KEYS', 'AIR_KEYS', 'pin_set', 'wind', 'pinned_indices',
+           'vec3', 'check_choice', 'check_dt',
            'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS', 'MIN_DT', 'OBSERVER_RUNTIME',
-           'unknown_parameters', 'params_files', 'node_sections']
+           'unknown_parameters', 'params_files', 'node_sections', 'group_names', 'check_names']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -30,12 +33,6 @@ PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_e
 MATERIAL_KEYS = ('zeta', 'xi', 'phi', 'density', 'damping')
 #: the coefficients of the air, air.<key> (core.air.Air's fields)
 AIR_KEYS = ('density', 'drag', 'lift')
-#: run-time parameters that must be non-negative floats
-RUNTIME_FLOATS = ('force_timeout', 'max_force', 'max_acceleration', 'status_period',
-                  'max_wind', 'contact.self_friction')
-#: the run-time parameters an ``observe_only`` node still lets change (they touch only how
-#: it draws and logs, not the physics or what it accepts)
-OBSERVER_RUNTIME = ('coloring', 'wireframe', 'status_period')
 #: [s] the smallest time step: below it sim time would crawl at any real-time factor
 MIN_DT = 1e-6
 
@@ -44,128 +41,210 @@ class ConfigError(ValueError):
     """A parameter value the node cannot start with; the message is the reason."""
 
 
-def _fp(lo: float, hi: float) -> List[FloatingPointRange]:
-    return [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+@dataclass(frozen=True)
+class Param:
+    """One parameter's declaration: everything the node, its manual and its checks know
+    about it.
+
+    ``default`` fixes the type (a float parameter takes floats only, as rclpy declares
+    it); ``low``/``high`` its range (rclpy's descriptor range, also checked by
+    :func:`check_value`); ``runtime`` whether it can change while the node runs (else
+    read-only); ``check(name, value)`` any further check of a run-time value (raises
+    :class:`ConfigError` with the reason); ``apply`` where an accepted run-time value goes,
+    an attribute path on the node (``'sim.dt'``: ``node.sim.dt = value``); ``group``
+    values that are applied together after the others (``'material'``: a new
+    :class:`Material`, ``'air'``: a new :class:`Air`, ``'limits'``: what stands above a
+    lowered limit is dropped); ``implicit`` a control of the implicit solver only;
+    ``observer`` one an ``observe_only`` node still lets change."""
+
+    default: object
+    text: str
+    unit: str = ''
+    runtime: bool = False
+    low: Optional[float] = None
+    high: Optional[float] = None
+    check: Optional[Callable[[str, object], None]] = None
+    apply: Optional[str] = None
+    group: Optional[str] = None
+    implicit: bool = False
+    observer: bool = False
+
+    @property
+    def description(self) -> str:
+        return f'{self.text} [{self.unit}]' if self.unit else self.text
+
+    @property
+    def descriptor(self) -> ParameterDescriptor:
+        """The rclpy descriptor: description, read-only and range."""
+        d = ParameterDescriptor(description=self.description, read_only=not self.runtime)
+        if self.low is not None and isinstance(self.default, bool):
+            raise TypeError('a bool has no range')
+        if self.low is not None and isinstance(self.default, int):
+            d.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high),
+                                            step=1)]
+        elif self.low is not None:
+            d.floating_point_range = [FloatingPointRange(from_value=float(self.low),
+                                                         to_value=float(self.high), step=0.0)]
+        return d
 
 
-def _desc(text: str, read_only: bool = False, fp=None, ip=None) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if fp is not None:
-        d.floating_point_range = fp
-    if ip is not None:
-        d.integer_range = ip
-    return d
+def _vec3(name: str, value) -> None:
+    vec3(value, name)
 
 
-#: name -> (default, descriptor). One source of truth for defaults, ranges and docs.
-PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
-    'mesh.file': ('', _desc('Mesh file (any format trimesh reads); empty for a grid. '
-                            'Relative paths resolve against the working directory.', True)),
-    'mesh.nx': (40, _desc('Grid segments along X', True,
-                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
-    'mesh.ny': (40, _desc('Grid segments along Y', True,
-                          ip=[IntegerRange(from_value=1, to_value=2000, step=1)])),
-    'mesh.width': (1.0, _desc('Grid size along X [m]', True, fp=_fp(1e-6, 1e4))),
-    'mesh.height': (1.0, _desc('Grid size along Y [m]', True, fp=_fp(1e-6, 1e4))),
-    'mesh.pattern': ('regular', _desc('Grid triangulation: ' + ', '.join(GRID_PATTERNS),
-                                      True)),
-    'mesh.seed': (0, _desc('Random seed of the irregular pattern', True)),
-    'material.preset': ('', _desc('A measured fabric: ' + ', '.join(PRESETS) + ' (sources: '
-                                  'core/fabrics.py); sets zeta, xi, phi and density, and '
-                                  'any material.* given too overrides it; empty: none',
-                                  True)),
-    'material.zeta': (50.0, _desc('Stretching coefficient zeta [N/m] (E h = 16 zeta/3)',
-                                  fp=_fp(0.0, 1e9))),
-    'material.xi': (2e-5, _desc('Bending coefficient xi [N m] (D = 6 xi)', fp=_fp(0.0, 1e6))),
-    'material.phi': (1e-6, _desc('Stretch-bend coupling phi [N]; phi^2 < 4 zeta xi',
-                                 fp=_fp(0.0, 1e6))),
-    'material.density': (0.2, _desc('Mass per unit area mu [kg/m^2]', fp=_fp(0.0, 1e6))),
-    'material.damping': (0.1, _desc('Damping rho [kg/(m^2 s)] (Eq. 1)', fp=_fp(0.0, 1e6))),
-    'dt': (2e-4, _desc('Time step [s], at least 1e-6; must not exceed the critical step '
-                       'of the mesh and material', fp=_fp(0.0, 1.0))),
-    'publish_rate': (30.0, _desc('Ticks per second: mesh, energy and /clock are published '
-                                 'every tick', True, fp=_fp(0.1, 1000.0))),
-    'gravity': ([0.0, 0.0, -9.81], _desc('Gravitational acceleration [m/s^2], 3 values')),
-    'pinned.indices': ([-1], _desc('Pinned vertex indices ([-1]: none)', True)),
-    'pinned.sets': (['top_corners'], _desc('Named pinned sets: ' + ', '.join(PIN_SETS),
-                                           True)),
-    'divergence': ('variational', _desc('Internal force discretisation: '
-                                        + ', '.join(DIVERGENCE_METHODS), True)),
-    'solver': ('explicit', _desc('Time integrator: explicit (symplectic Euler, dt below the '
-                                 'critical step) or implicit (backward Euler by Newton-CG, '
-                                 'any dt up to 1 s, dissipative)', True)),
-    'solver.iterations': (20, _desc('Most Newton iterations per implicit step (solver: '
-                                    'implicit only); 1 = linearised backward Euler (one '
-                                    'Newton step, tolerance not asked for)',
-                                    ip=[IntegerRange(from_value=1, to_value=1000, step=1)])),
-    'solver.tolerance': (1e-3, _desc('Implicit convergence: every vertex residual force '
-                                     'relative to the larger of the step start residual '
-                                     'and the vertex load (weight, applied force)',
-                                     fp=_fp(1e-12, 0.5))),
-    'real_time_factor': (1.0, _desc('Simulation seconds the node aims to advance per wall '
-                                    'second (1: real time); it runs slower when the host '
-                                    'cannot keep up. Clients that pace on /clock give the '
-                                    'same result at any factor', fp=_fp(1e-3, 100.0))),
-    'frame_id': ('world', _desc('Frame of the published mesh and accepted commands', True)),
-    'publish_clock': (True, _desc('Publish simulation time on /clock', True)),
-    'force_timeout': (1.0, _desc('Forces, force field and wind lapse after this many '
-                                 'seconds of simulation time without a new message (0 = '
-                                 'hold) [s]', fp=_fp(0.0, 1e6))),
-    'max_force': (10.0, _desc('Largest force on one vertex [N]: per row, and summed over '
-                              'the rows and topics that load the vertex', fp=_fp(0.0, 1e9))),
-    'max_acceleration': (100.0, _desc('Largest accepted force field [m/s^2]',
-                                      fp=_fp(0.0, 1e9))),
-    'air.enabled': (False, _desc('Aerodynamic drag and lift on every triangle from its '
-                                 'velocity relative to the wind (air.wind, ~/wind)')),
-    'air.density': (1.225, _desc('Air density [kg/m^3] (sea level)', fp=_fp(0.0, 100.0))),
-    'air.drag': (1.17, _desc('Drag coefficient C_D [-] (a flat plate: 1.17)',
-                             fp=_fp(0.0, 100.0))),
-    'air.lift': (0.0, _desc('Lift coefficient C_L [-]', fp=_fp(0.0, 100.0))),
-    'air.wind': ([0.0, 0.0, 0.0], _desc('Steady wind [m/s], 3 values in frame_id; ~/wind '
-                                        'overrides it until the message lapses')),
-    'max_wind': (50.0, _desc('Largest accepted wind speed [m/s] (air.wind and ~/wind)',
-                             fp=_fp(0.0, 1e4))),
-    'coloring': ('energy', _desc('Mesh colouring: ' + ', '.join(COLORINGS))),
-    'wireframe': (False, _desc('Publish a LINE_LIST wireframe too')),
-    'status_period': (1.0, _desc('Seconds between one-line status logs (0 = off)',
-                                 fp=_fp(0.0, 3600.0))),
-    'contact.thickness': (0.002, _desc('Distance the cloth keeps from every obstacle [m]',
-                                       fp=_fp(1e-5, 0.1))),
-    'contact.self': (False, _desc('Self-collision: the cloth keeps contact.thickness from '
-                                  'itself (vertex-triangle and edge-edge) and never passes '
-                                  'through; costs a response after every step')),
-    'contact.self_friction': (0.5, _desc('Coulomb friction coefficient between two layers '
-                                         'of the cloth [-]', fp=_fp(0.0, 100.0))),
-    'handles.names': ([''], _desc('Grasp handles, each with ~/handles/<name>/grasp, '
-                                  '/target and /wrench; handles.<name>.radius [m] and '
-                                  "handles.<name>.break_force [N] (0 = none); [''] for none",
-                                  True)),
-    'handles.max_speed': (2.0, _desc('Fastest accepted motion of a held handle [m/s]: a '
-                                     'target further from where the handle is, its turn '
-                                     'counted at the grasp radius, is refused',
-                                     fp=_fp(1e-3, 100.0))),
-    'publish.points': (False, _desc('Publish ~/points: sensor_msgs/PointCloud2, one point '
-                                    'per vertex, float32 x y z vx vy vz, every tick', True)),
-    'publish.shape': (False, _desc('Publish ~/shape: shape_msgs/Mesh of the cloth (for '
-                                   'MoveIt collision objects), every tick', True)),
-    'foxglove.port': (0, _desc('Port of the live view, a Foxglove WebSocket server in the '
-                               'node (needs foxglove-sdk: the viz extra); 0 = off', True,
-                               ip=[IntegerRange(from_value=0, to_value=65535, step=1)])),
-    'foxglove.host': ('127.0.0.1', _desc('Address the live view listens on (0.0.0.0: '
-                                         'every interface)', True)),
-    'observe_only': (False, _desc('Serve the cloth read-only: no command topics, no '
-                                  'reset/pause/grasp services, and no run-time change of '
-                                  'any parameter but ' + ', '.join(OBSERVER_RUNTIME), True)),
-    'obstacles.names': ([''], _desc('Obstacles declared in the parameters, each with '
-                                    'obstacles.<name>.shape and its geometry (doc/contact.md); '
-                                    "[''] for none", True)),
-    'cameras.names': ([''], _desc('Virtual RGB-D cameras, each with '
-                                  '~/cameras/<name>/{depth,color}/image_raw, camera_info, '
-                                  'pose_out, pose (in) and with cameras.<name>.points '
-                                  'points; cameras.<name>.width, height, fov, position, '
-                                  "orientation, rate, near, far (doc/viewing.md); [''] for none",
-                                  True)),
+def _min_dt(name: str, value) -> None:
+    if not value >= MIN_DT:
+        raise ConfigError(f'dt must be a float of at least {MIN_DT:g} s')
+
+
+def _coloring(name: str, value) -> None:
+    if value not in COLORINGS:
+        raise ConfigError(f'coloring must be one of {COLORINGS}')
+
+
+def _material(text: str, default: float, unit: str, high: float) -> Param:
+    return Param(default, text, unit, True, 0.0, high, group='material')
+
+
+def _air(text: str, default: float, unit: str = '-') -> Param:
+    return Param(default, text, unit, True, 0.0, 100.0, group='air')
+
+
+#: name -> declaration, in the manual's order. The one source of truth for every
+#: parameter's type, default, unit, range, run-time behaviour and documentation.
+DECLARATIONS: Dict[str, Param] = {
+    'mesh.file': Param('', 'Mesh file (any format trimesh reads); empty for a grid. '
+                           'Relative paths resolve against the working directory.'),
+    'mesh.nx': Param(40, 'Grid segments along X', low=1, high=2000),
+    'mesh.ny': Param(40, 'Grid segments along Y', low=1, high=2000),
+    'mesh.width': Param(1.0, 'Grid size along X', 'm', low=1e-6, high=1e4),
+    'mesh.height': Param(1.0, 'Grid size along Y', 'm', low=1e-6, high=1e4),
+    'mesh.pattern': Param('regular', 'Grid triangulation: ' + ', '.join(GRID_PATTERNS)),
+    'mesh.seed': Param(0, 'Random seed of the irregular pattern'),
+    'material.preset': Param('', 'A measured fabric: ' + ', '.join(PRESETS) + ' (sources: '
+                                 'core/fabrics.py); sets zeta, xi, phi and density, and any '
+                                 'material.* given too overrides it; empty: none'),
+    'material.zeta': _material('Stretching coefficient zeta (E h = 16 zeta/3)', 50.0, 'N/m',
+                               1e9),
+    'material.xi': _material('Bending coefficient xi (D = 6 xi)', 2e-5, 'N m', 1e6),
+    'material.phi': _material('Stretch-bend coupling phi; phi^2 < 4 zeta xi', 1e-6, 'N', 1e6),
+    'material.density': _material('Mass per unit area mu', 0.2, 'kg/m^2', 1e6),
+    'material.damping': _material('Damping rho (Eq. 1)', 0.1, 'kg/(m^2 s)', 1e6),
+    'dt': Param(2e-4, 'Time step, at least 1e-6; must not exceed the critical step of the '
+                      'mesh and material', 's', True, 0.0, 1.0, _min_dt, 'sim.dt'),
+    'publish_rate': Param(30.0, 'Ticks per second: mesh, energy and /clock are published '
+                                'every tick', '1/s', low=0.1, high=1000.0),
+    'gravity': Param([0.0, 0.0, -9.81], 'Gravitational acceleration, 3 values', 'm/s^2', True,
+                     check=_vec3, apply='sim.gravity'),
+    'pinned.indices': Param([-1], 'Pinned vertex indices ([-1]: none)'),
+    'pinned.sets': Param(['top_corners'], 'Named pinned sets: ' + ', '.join(PIN_SETS)),
+    'divergence': Param('variational', 'Internal force discretisation: '
+                                       + ', '.join(DIVERGENCE_METHODS)),
+    'solver': Param('explicit', 'Time integrator: explicit (symplectic Euler, dt below the '
+                                'critical step) or implicit (backward Euler by Newton-CG, any '
+                                'dt up to 1 s, dissipative)'),
+    'solver.iterations': Param(20, 'Most Newton iterations per implicit step (solver: '
+                                   'implicit only); 1 = linearised backward Euler (one Newton '
+                                   'step, tolerance not asked for)', runtime=True, low=1,
+                               high=1000, apply='sim.solver_iterations', implicit=True),
+    'solver.tolerance': Param(1e-3, 'Implicit convergence: every vertex residual force '
+                                    'relative to the larger of the step start residual and '
+                                    'the vertex load (weight, applied force)', '-', True, 1e-12,
+                              0.5, apply='sim.solver_tolerance', implicit=True),
+    'real_time_factor': Param(1.0, 'Simulation seconds the node aims to advance per wall '
+                                   'second (1: real time); it runs slower when the host '
+                                   'cannot keep up. Clients that pace on /clock give the '
+                                   'same result at any factor', '-', True, 1e-3, 100.0,
+                              apply='pacer.factor'),
+    'frame_id': Param('world', 'Frame of the published mesh and accepted commands'),
+    'publish_clock': Param(True, 'Publish simulation time on /clock'),
+    'force_timeout': Param(1.0, 'Forces, force field and wind lapse after this many seconds '
+                                'of simulation time without a new message (0 = hold)', 's',
+                           True, 0.0, 1e6, apply='inputs.force_timeout'),
+    'max_force': Param(10.0, 'Largest force on one vertex: per row, and summed over the rows '
+                             'and topics that load the vertex', 'N', True, 0.0, 1e9,
+                       apply='inputs.max_force', group='limits'),
+    'max_acceleration': Param(100.0, 'Largest accepted force field', 'm/s^2', True, 0.0, 1e9,
+                              apply='inputs.max_acceleration', group='limits'),
+    'air.enabled': Param(False, 'Aerodynamic drag and lift on every triangle from its '
+                                'velocity relative to the wind (air.wind, ~/wind)',
+                         runtime=True, group='air'),
+    'air.density': _air('Air density (sea level)', 1.225, 'kg/m^3'),
+    'air.drag': _air('Drag coefficient C_D (a flat plate: 1.17)', 1.17),
+    'air.lift': _air('Lift coefficient C_L', 0.0),
+    'air.wind': Param([0.0, 0.0, 0.0], 'Steady wind, 3 values in frame_id; ~/wind overrides '
+                                       'it until the message lapses', 'm/s', True,
+                      check=_vec3, apply='inputs.steady_wind'),
+    'max_wind': Param(50.0, 'Largest accepted wind speed (air.wind and ~/wind)', 'm/s', True,
+                      0.0, 1e4, apply='inputs.max_wind', group='limits'),
+    'coloring': Param('energy', 'Mesh colouring: ' + ', '.join(COLORINGS), runtime=True,
+                      check=_coloring, apply='coloring', observer=True),
+    'wireframe': Param(False, 'Publish a LINE_LIST wireframe too', runtime=True,
+                       apply='wireframe', observer=True),
+    'status_period': Param(1.0, 'Seconds between one-line status logs (0 = off)', 's', True,
+                           0.0, 3600.0, apply='status_period', observer=True),
+    'contact.thickness': Param(0.002, 'Distance the cloth keeps from every obstacle', 'm',
+                               True, 1e-5, 0.1, apply='sim.contact_thickness'),
+    'contact.self': Param(False, 'Self-collision: the cloth keeps contact.thickness from '
+                                 'itself (vertex-triangle and edge-edge) and never passes '
+                                 'through; costs a response after every step', runtime=True,
+                          apply='sim.self_collision'),
+    'contact.self_friction': Param(0.5, 'Coulomb friction coefficient between two layers of '
+                                        'the cloth', '-', True, 0.0, 100.0,
+                                   apply='sim.self_friction'),
+    'handles.names': Param([''], 'Grasp handles, each with ~/handles/<name>/grasp, /target '
+                                 'and /wrench; handles.<name>.radius [m] and '
+                                 "handles.<name>.break_force [N] (0 = none); [''] for none"),
+    'handles.max_speed': Param(2.0, 'Fastest accepted motion of a held handle: a target '
+                                    'further from where the handle is, its turn counted at '
+                                    'the grasp radius, is refused', 'm/s', True, 1e-3, 100.0,
+                               apply='handles.max_speed'),
+    'publish.points': Param(False, 'Publish ~/points: sensor_msgs/PointCloud2, one point per '
+                                   'vertex, float32 x y z vx vy vz, every tick'),
+    'publish.shape': Param(False, 'Publish ~/shape: shape_msgs/Mesh of the cloth (for MoveIt '
+                                  'collision objects), every tick'),
+    'foxglove.port': Param(0, 'Port of the live view, a Foxglove WebSocket server in the '
+                              'node (needs foxglove-sdk: the viz extra); 0 = off',
+                           low=0, high=65535),
+    'foxglove.host': Param('127.0.0.1', 'Address the live view listens on (0.0.0.0: every '
+                                        'interface)'),
+    'observe_only': Param(False, 'Serve the cloth read-only: no command topics, no '
+                                 'reset/pause/grasp services, and no run-time change of any '
+                                 'parameter but '),             # + OBSERVER_RUNTIME, below
+    'obstacles.names': Param([''], 'Obstacles declared in the parameters, each with '
+                                   'obstacles.<name>.shape and its geometry (doc/contact.md); '
+                                   "[''] for none"),
+    'cameras.names': Param([''], 'Virtual RGB-D cameras, each with '
+                                 '~/cameras/<name>/{depth,color}/image_raw, camera_info, '
+                                 'pose_out, pose (in) and with cameras.<name>.points points; '
+                                 'cameras.<name>.width, height, fov, position, orientation, '
+                                 "rate, near, far (doc/viewing.md); [''] for none"),
 }
+
+#: the run-time parameters an ``observe_only`` node still lets change (they touch only how
+#: it draws and logs, not the physics or what it accepts)
+OBSERVER_RUNTIME = tuple(n for n, d in DECLARATIONS.items() if d.observer)
+DECLARATIONS['observe_only'] = replace(DECLARATIONS['observe_only'], text=DECLARATIONS[
+    'observe_only'].text + ', '.join(OBSERVER_RUNTIME))
+#: name -> (default, rclpy descriptor), the view of :data:`DECLARATIONS` rclpy and the
+#: scene builder (:func:`.scene.check_parameters`) read
+PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
+    name: (d.default, d.descriptor) for name, d in DECLARATIONS.items()}
+
+
+def check_value(name: str, value) -> None:
+    """A run-time value of declared parameter ``name`` against its declaration: its type
+    (a float parameter takes a finite float), its range and its own check; ConfigError
+    with the reason."""
+    d = DECLARATIONS[name]
+    if isinstance(d.default, float):
+        if not isinstance(value, float) or not math.isfinite(value):
+            raise ConfigError(f'{name} must be a finite float, got {value!r}')
+    if d.low is not None and not d.low <= value <= d.high:
+        raise ConfigError(f'{name} must lie in [{d.low:g}, {d.high:g}], got {value!r}')
+    if d.check is not None:
+        d.check(name, value)
+
 
 #: the parameters of each camera, cameras.<name>.<key>: key -> default (a camera 2 m
 #: above the origin looking straight down, image x along the world's x;
@@ -286,6 +365,34 @@ def pinned_indices(mesh, indices, sets) -> np.ndarray:
         idx.extend(pin_set(mesh, s).tolist())
     return np.unique(np.array(idx, dtype=np.int64))
 
+
+
+def group_names(group: str, names) -> List[str]:
+    """The non-empty names of ``<group>.names``, refused if one repeats."""
+    names = [n for n in names if n]
+    if len(set(names)) != len(names):
+        raise ConfigError(f'{group}.names has duplicates: {names}')
+    return names
+
+
+def check_names(p: dict, given, declared, argv, fqn: str) -> None:
+    """Refuse the names in ``given`` (the overrides of a node ``fqn``) that are not
+    ``declared`` nor of a declared obstacle, handle or camera (a typo would otherwise
+    start a default cloth), and params files in ``argv`` with no section for the node.
+    ``p``: the node's values of :data:`DECLARATIONS`."""
+    known = set(declared)
+    for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS),
+                        ('cameras', CAMERA_KEYS)):
+        known |= {f'{group}.{n}.{k}' for n in p[f'{group}.names'] if n for k in keys}
+    bad = unknown_parameters(given, known)
+    if bad:
+        raise ConfigError(f'unknown parameter{"s" if len(bad) > 1 else ""} '
+                          f'{", ".join(bad)} for {fqn} (doc/node.md lists them all)')
+    files = params_files(argv)
+    if files and not any(node_sections(path, fqn)[0] for path in files):
+        name = fqn.rsplit('/', 1)[-1]
+        raise ConfigError(f'{", ".join(files)}: no section for node {fqn} (a file for this '
+                          f'node starts with "{name}:" or "/**:", then "ros__parameters:")')
 
 
 def unknown_parameters(given, known) -> List[str]:

@@ -31,8 +31,8 @@ from ..core.mesh import GRID_PATTERNS, MeshError, grid_mesh, load_mesh
 from ..core.simulator import ClothSimulator
 from ..core.solvers.explicit import DIVERGENCE_METHODS
 from .params import (AIR_KEYS, CAMERA_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE_KEYS, PARAMETERS,
-                     ConfigError, check_choice, check_dt, obstacle_geometry, pinned_indices,
-                     vec3, wind)
+                     ConfigError, check_choice, check_dt, group_names, obstacle_geometry,
+                     pinned_indices, vec3, wind)
 
 __all__ = ['check_parameters', 'build_mesh', 'initial_material', 'build_air',
            'Settings', 'checked_settings', 'apply_settings', 'build_simulator', 'resolve_path',
@@ -156,10 +156,7 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
     for group, keys in (('obstacles', OBSTACLE_KEYS), ('handles', HANDLE_KEYS),
                         ('cameras', CAMERA_KEYS)):
         names = given.get(f'{group}.names', PARAMETERS[f'{group}.names'][0])
-        names = _typed(f'{group}.names', names, 'str[]')
-        names = [n for n in names if n]
-        if len(set(names)) != len(names):
-            raise ConfigError(f'{group}.names has duplicates: {names}')
+        names = group_names(group, _typed(f'{group}.names', names, 'str[]'))
         for n in names:
             for key, default in keys.items():
                 groups[f'{group}.{n}.{key}'] = default
