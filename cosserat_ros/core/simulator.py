@@ -49,7 +49,7 @@ from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
 from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
 from .state import Control, State
-from .terms import covariant
+from .terms import covariant, registry
 from .terms.jet import model_scratch
 
 __all__ = ['ClothSimulator', 'Material', 'Air', 'SimulationDiverged', 'steps_tiled',
@@ -79,6 +79,20 @@ def _as_vec3(value, name: str) -> np.ndarray:
     return arr
 
 
+def _extra_terms(given) -> list:
+    """(term, coefficient values) of every registered term that is not built in, the
+    values from ``given`` (term name -> {coefficient: value}) over the defaults;
+    ValueError for a name no registered term has."""
+    given = dict(given or {})
+    extras = registry.extra_terms()
+    unknown = sorted(set(given) - {t.name for t in extras})
+    if unknown:
+        raise ValueError(f'terms: no registered term {", ".join(map(repr, unknown))} '
+                         f'(registered: {", ".join(t.name for t in extras) or "none"}; '
+                         'cosserat_ros.core.terms.register adds one)')
+    return [(t, registry.values_of(t, given.get(t.name))) for t in extras]
+
+
 class ClothSimulator:
     """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29, the
     default) or by backward Euler (``solver='implicit'``).
@@ -106,13 +120,18 @@ class ClothSimulator:
         or backward Euler by Newton-CG (:mod:`.solvers.implicit`; any dt, dissipative,
         its controls :attr:`solver_iterations` and :attr:`solver_tolerance`, its last
         solve in :attr:`solve_report`).
+    terms : dict, optional
+        Coefficient values of registered energy terms (:mod:`.terms.registry`), by term
+        name: ``{'tether': {'k': 50.0}}``. Every term registered when the simulator is
+        built acts, with its coefficients' defaults where none is given; :meth:`set_term`
+        changes them later.
     """
 
     SOLVERS = ('explicit', 'implicit')
 
     def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
                  divergence: str = 'variational', check_dt: bool = True, simd: bool = True,
-                 solver: str = 'explicit'):
+                 solver: str = 'explicit', terms: Optional[Dict[str, dict]] = None):
         if not isinstance(mesh, ClothMesh):
             raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
         if not isinstance(material, Material):
@@ -129,6 +148,8 @@ class ClothSimulator:
         self._divergence = divergence
         self.model = Model.from_mesh(mesh)
         self.solver = ExplicitSolver(self.model, divergence, simd)
+        self._terms = _extra_terms(terms)
+        self.solver.extra = self._terms              # (the implicit solver reads its own)
         if solver == 'implicit':
             self.solver = ImplicitSolver(self.model, self.solver)
         self._solver_kind = solver
@@ -847,8 +868,31 @@ class ClothSimulator:
         self.control.contact[:] = C.NO_CONTACT
         self._features.start()
 
+    # ------------------------------------------------------------------ terms
+    @property
+    def terms(self) -> Dict[str, Dict[str, float]]:
+        """The registered terms this simulator carries besides the built-in ones, with
+        their coefficient values: ``{name: {coefficient: value}}`` (a copy)."""
+        return {t.name: dict(c) for t, c in self._terms}
+
+    def set_term(self, name: str, **values) -> None:
+        """Set coefficients of the registered term ``name`` (``set_term('tether',
+        k=80.0)``); takes effect at the next step. ValueError for an unknown term or
+        coefficient or a value out of its range (nothing changes then)."""
+        for term, c in self._terms:
+            if term.name == name:
+                c.update(registry.values_of(term, {**c, **values}))
+                # the stability estimate and its material shortcut included the old values
+                self._critical_dt = None
+                self._omega2_base = None
+                self._omega2_known.clear()
+                return
+        raise ValueError(f'no term {name!r} in this simulator (it carries '
+                         f'{", ".join(t.name for t, _ in self._terms) or "none"})')
+
     def internal_forces(self) -> np.ndarray:
-        """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now."""
+        """Internal force N^a|_a integrated over each dual cell, (n, 3) [N], now (with
+        the registered terms' forces, :attr:`terms`)."""
         out = np.zeros((self.n_vertices, 3))
         self.solver.internal_forces(self.state.x, self.coefficients, out)
         return out
@@ -860,8 +904,18 @@ class ClothSimulator:
         # the explicit solver's velocity is half a step behind x (leapfrog), the implicit
         # one's at x's time: the report carries it by dt / 2 for the first only
         lag = self._dt if self._solver_kind == 'explicit' else 0.0
-        return _energy.report(self.model, self.coefficients, self.state, self.control,
-                              lag, self._scratch, self.internal_forces())
+        energy, dens = _energy.report(self.model, self.coefficients, self.state, self.control,
+                                      lag, self._scratch, self.internal_forces())
+        if self._terms:
+            # each registered term under its name, in the total (not in ``elastic``, the
+            # Cosserat surface's own), at the positions (the report's x)
+            extra = {t.name: float(t.energy(self.model, self.state.x, c))
+                     for t, c in self._terms}
+            total = energy['total'] + sum(extra.values())
+            energy = {k: v for k, v in energy.items() if k != 'total'}
+            energy.update(extra)
+            energy['total'] = total
+        return energy, dens
 
     def energy_densities(self) -> Dict[str, np.ndarray]:
         """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
@@ -875,7 +929,8 @@ class ClothSimulator:
         solver the leapfrog half-step correction v + dt/2 a; the implicit solver's
         velocity is at the positions' time), ``stretching``, ``bending``, ``coupling`` are the
         discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
-        -sum m g . x, ``total`` = kinetic + elastic + gravity. ``external_work`` (nodal
+        -sum m g . x, each registered term's energy under its name (:attr:`terms`),
+        ``total`` = kinetic + elastic + gravity + those. ``external_work`` (nodal
         forces, force field, air, and what pins, handles and obstacles do) and
         ``dissipated`` (damping, friction) accumulate since the last
         reset, so ``total - total(0) ~ external_work - dissipated``.
@@ -950,7 +1005,9 @@ class ClothSimulator:
             stiff0 = np.array([m0.zeta, m0.xi, m0.phi])
             k = int(np.argmax(np.abs(stiff0)))
             scale = stiff[k] / stiff0[k] if stiff0[k] else 0.0
-            if scale > 0 and np.allclose(stiff, scale * stiff0, rtol=1e-12, atol=0.0):
+            # (not with registered terms: their stiffness does not scale with the material)
+            if (scale > 0 and not self._terms
+                    and np.allclose(stiff, scale * stiff0, rtol=1e-12, atol=0.0)):
                 w2 = w0 * scale * m0.density / material.density
             else:
                 w2, _ = self._omega2(coeff, self.mesh.vertices, self.UPDATE_ITERATIONS,

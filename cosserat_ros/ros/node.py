@@ -35,10 +35,9 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core import warmup
-from ..core.air import Air
 from ..core.contact import mesh_distance_field
 from ..core.simulator import ClothSimulator, Material, SimulationDiverged, steps_tiled
-from . import commands, messages, scene, status
+from . import commands, messages, runtime, scene, status
 from .conversions import (mesh_marker_array, OPTIONAL_MARKERS, optional_markers,
                           percentile, point_cloud, shape_mesh, vertex_colors)
 from .cameras import CameraStreams, declared_cameras
@@ -48,8 +47,9 @@ from .obstacles import ObstacleStreams
 from .pacing import Pacer
 from .obstacles import MESH_BUILD_PERIOD
 from .serve import main
-from .params import (AIR_KEYS, check_choice, check_dt, check_names, check_value, COLORINGS,
-                     ConfigError, DECLARATIONS, MATERIAL_KEYS, pin_set, wind as checked_wind)
+from .params import (check_choice, check_dt, check_names, check_value, COLORINGS, ConfigError,
+                     DECLARATIONS, MATERIAL_KEYS, OBSERVER_RUNTIME, pin_set,
+                     term_declarations, wind as checked_wind)
 from .status import solver_warning
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile', 'solver_warning']
@@ -75,11 +75,14 @@ class ClothNode(Node):
 
     def __init__(self, name: str = 'cloth_node', argv=None, **kwargs):
         super().__init__(name, **kwargs)
-        for pname, d in DECLARATIONS.items():
+        #: the node's own parameters and the registered terms' (terms.<name>.<coefficient>)
+        self.declarations = {**DECLARATIONS, **term_declarations()}
+        for pname, d in self.declarations.items():
             self._declare(pname, d.default, d.descriptor)
-        p = {pname: self.get_parameter(pname).value for pname in DECLARATIONS}
+        p = {pname: self.get_parameter(pname).value for pname in self.declarations}
         # everything that needs no compiled kernel is checked first: a bad file fails fast
-        check_names(p, self._parameter_overrides, set(DECLARATIONS) | set(self._parameters),
+        check_names(p, self._parameter_overrides,
+                    set(self.declarations) | set(self._parameters),
                     sys.argv if argv is None else argv, self.get_fully_qualified_name())
         if self.get_parameter('use_sim_time').value:
             raise ConfigError(SIM_TIME_REASON)
@@ -137,8 +140,14 @@ class ClothNode(Node):
         # with a cold compile cache, a second process compiles on the other core what the
         # start-up below needs after its step (cosserat_ros.core.warmup)
         warmup.start(steps_tiled(self.mesh.n_vertices, p['divergence']), material.phi != 0.0)
+        terms = {}
+        for pname in self.declarations:
+            if pname.startswith('terms.'):
+                _, term, coef = pname.split('.')
+                terms.setdefault(term, {})[coef] = p[pname]
         sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
-                             divergence=p['divergence'], check_dt=False, solver=p['solver'])
+                             divergence=p['divergence'], check_dt=False, solver=p['solver'],
+                             terms=terms)
         if self.implicit:
             sim.solver_iterations = p['solver.iterations']
             sim.solver_tolerance = p['solver.tolerance']
@@ -279,11 +288,11 @@ class ClothNode(Node):
     # ------------------------------------------------------------------ parameters
     def validate_parameters(self, params: List[Parameter]) -> SetParametersResult:
         """Each value against its declaration (:func:`.params.check_value`), then what
-        they must satisfy together (:meth:`_check_together`); only validates:
+        they must satisfy together (:func:`.runtime.check_together`); only validates:
         :meth:`apply_parameters` applies accepted values."""
         for prm in params:
             name, val = prm.name, prm.value
-            d = DECLARATIONS.get(name)
+            d = self.declarations.get(name)
             if name == 'use_sim_time' and val:
                 return _refused(SIM_TIME_REASON)
             if d is not None and d.implicit and not self.implicit:
@@ -291,52 +300,17 @@ class ClothNode(Node):
                                 'solver: explicit (chosen at start-up)')
             if self.observe_only and not (d is not None and d.observer):
                 return _refused(f'observe_only: {name} cannot change (only '
-                                f'{", ".join(n for n, e in DECLARATIONS.items() if e.observer)}'
-                                ' can)')
+                                f'{", ".join(OBSERVER_RUNTIME)} can)')
             if d is not None and d.runtime:
                 try:
-                    check_value(name, val)
+                    check_value(name, val, d)
                 except ConfigError as exc:
                     return _refused(str(exc))
         try:
-            self._check_together({prm.name: prm.value for prm in params})
+            runtime.check_together(self, {prm.name: prm.value for prm in params})
         except ConfigError as exc:
             return _refused(str(exc))
         return SetParametersResult(successful=True)
-
-    def _check_together(self, new: dict):
-        """ConfigError unless the wind is within max_wind, the material and the air are
-        valid and, on the explicit solver, dt within the critical step of the material."""
-        max_wind = new.get('max_wind', self.inputs.max_wind)
-        if 'air.wind' in new:
-            checked_wind(new['air.wind'], max_wind)
-        elif 'max_wind' in new and float(np.linalg.norm(self.inputs.steady_wind)) > max_wind:
-            raise ConfigError(f'max_wind {max_wind:g} m/s is below the standing air.wind '
-                              f'({np.linalg.norm(self.inputs.steady_wind):.3g} m/s): lower '
-                              'air.wind first, or both together')
-        material, air = self._material_and_air(new)
-        dt = new.get('dt', self.sim.dt)
-        if not self.implicit and (material != self.sim.material or dt != self.sim.dt):
-            try:
-                crit = self.sim.critical_dt(material)
-            except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-                raise ConfigError(f'no stable step found for this material '
-                                  f'({type(exc).__name__}: {exc})') from None
-            if not dt <= crit:                   # (a NaN limit refuses too)
-                raise ConfigError(f'dt = {dt:.3g} s would exceed the critical step '
-                                  f'{crit:.3g} s of this mesh and material')
-
-    def _material_and_air(self, new: dict) -> Tuple[Material, Optional[Air]]:
-        """The material and the air with the values of ``new`` in; ConfigError if
-        invalid."""
-        mat = {k: new.get('material.' + k, getattr(self.sim.material, k))
-               for k in MATERIAL_KEYS}
-        coef = {k: new.get('air.' + k, self.get_parameter('air.' + k).value) for k in AIR_KEYS}
-        try:
-            return Material(**mat), scene.build_air(new.get(
-                'air.enabled', self.get_parameter('air.enabled').value), coef)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
 
     def apply_parameters(self, params: List[Parameter]):
         """Each accepted value to where its declaration says (``Param.apply``), then the
@@ -344,7 +318,7 @@ class ClothNode(Node):
         new = {prm.name: prm.value for prm in params}
         groups = set()
         for name, val in new.items():
-            d = DECLARATIONS.get(name)
+            d = self.declarations.get(name)
             if d is None or not d.runtime:
                 continue
             if d.apply is not None:
@@ -356,7 +330,7 @@ class ClothNode(Node):
             if d.group is not None:
                 groups.add(d.group)
         if groups & {'material', 'air'}:
-            material, air = self._material_and_air(new)
+            material, air = runtime.material_and_air(self, new)
             if 'material' in groups:
                 self.sim.material = material
             if 'air' in groups:
@@ -365,6 +339,11 @@ class ClothNode(Node):
                     self.inputs.drop_wind()
         if 'limits' in groups:
             self.inputs.enforce_limits()
+        if 'terms' in groups:
+            for name, val in new.items():
+                if name.startswith('terms.'):
+                    _, term, coef = name.split('.')
+                    self.sim.set_term(term, **{coef: val})
         self._dirty = True
 
     # ------------------------------------------------------------------ the loop

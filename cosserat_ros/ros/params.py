@@ -25,7 +25,8 @@ __all__ = ['PARAMETERS', 'DECLARATIONS', 'Param', 'check_value', 'ConfigError', 
            'PIN_SETS', 'MATERIAL_KEYS', 'AIR_KEYS', 'pin_set', 'wind', 'pinned_indices',
            'vec3', 'check_choice', 'check_dt',
            'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS', 'MIN_DT', 'OBSERVER_RUNTIME',
-           'unknown_parameters', 'params_files', 'node_sections', 'group_names', 'check_names']
+           'unknown_parameters', 'params_files', 'node_sections', 'group_names', 'check_names',
+           'term_declarations']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -232,11 +233,33 @@ PARAMETERS: Dict[str, Tuple[object, ParameterDescriptor]] = {
     name: (d.default, d.descriptor) for name, d in DECLARATIONS.items()}
 
 
-def check_value(name: str, value) -> None:
-    """A run-time value of declared parameter ``name`` against its declaration: its type
-    (a float parameter takes a finite float), its range and its own check; ConfigError
-    with the reason."""
-    d = DECLARATIONS[name]
+def term_declarations() -> Dict[str, Param]:
+    """``terms.<name>.<coefficient>`` for each coefficient of every registered term
+    besides the built-ins (:mod:`cosserat_ros.core.terms.registry`): its default, unit,
+    range and text, changeable at run time (``ClothSimulator.set_term``)."""
+    from ..core.terms.registry import extra_terms
+    out = {}
+    for term in extra_terms():
+        for c in term.coefficients:
+            bounded = math.isfinite(c.low) and math.isfinite(c.high)
+
+            def check(name, value, c=c, term=term.name):
+                try:
+                    c.check(value, term)
+                except ValueError as exc:
+                    raise ConfigError(f'{name}: {exc}') from None
+            out[f'terms.{term.name}.{c.name}'] = Param(
+                float(c.default), c.text or f'term {term.name}: {c.name}', c.unit, True,
+                c.low if bounded else None, c.high if bounded else None, check,
+                group='terms')
+    return out
+
+
+def check_value(name: str, value, d: Optional[Param] = None) -> None:
+    """A run-time value of declared parameter ``name`` (declaration ``d``, default: from
+    :data:`DECLARATIONS`) against its declaration: its type (a float parameter takes a
+    finite float), its range and its own check; ConfigError with the reason."""
+    d = DECLARATIONS[name] if d is None else d
     if isinstance(d.default, float):
         if not isinstance(value, float) or not math.isfinite(value):
             raise ConfigError(f'{name} must be a finite float, got {value!r}')

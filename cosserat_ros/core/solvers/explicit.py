@@ -135,6 +135,9 @@ class ExplicitSolver:
         self._force_control = Control.empty(n)
         self.cov_work: Optional[covariant.Work] = (covariant.Work.zeros(n)
                                                    if divergence == 'covariant' else None)
+        #: the registered terms besides the built-ins, (term, its coefficient values)
+        #: pairs (:mod:`..terms.registry`; the simulator's list, shared)
+        self.extra: list = []
 
     def _share_threads(self) -> int:
         """Set the work-sharing states' range count (``fast/workshare.py``) to the threads
@@ -157,6 +160,46 @@ class ExplicitSolver:
     def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
         """Advance ``nsteps`` steps in place; returns the steps completed (fewer means the
         next one diverged and ``state`` is invalid: the caller restores it)."""
+        if self.extra:
+            return self._step_with_terms(nsteps, state, control, coeff, dt, vmax2)
+        return self._step(nsteps, state, control, coeff, dt, vmax2)
+
+    def extra_force(self, x: np.ndarray) -> np.ndarray:
+        """-sum of the registered terms' gradients at x (n,3) [N] (:attr:`extra`)."""
+        f = np.zeros_like(x)
+        for term, c in self.extra:
+            f -= term.gradient(self.model, x, c)
+        return f
+
+    def _step_with_terms(self, nsteps, state, control, coeff, dt, vmax2) -> int:
+        """The steps with the registered terms (:attr:`extra`): one compiled step at a
+        time, each with the terms' force at its start positions added to the applied force
+        (symplectic Euler: every force of the update at x_n), and its work ``f . (x_{n+1}
+        - x_n)``, which the update books as external work (a held vertex's included: its
+        reaction takes the term's force off), taken back out: it is the change of the
+        term's own energy, which the report counts (:mod:`..energy`)."""
+        fe, fa = control.f_external, control.f_applied
+        base_e, base_a = fe.copy(), fa.copy()
+        f = np.zeros_like(state.x)
+        try:
+            for s in range(nsteps):
+                f[:] = self.extra_force(state.x)
+                x0 = state.x.copy()
+                fe[:] = base_e + f          # with air the step's air pass adds to this one
+                fa[:] = base_a + f
+                done = self._step(1, state, control, coeff, dt, vmax2)
+                state.acc[0] -= float(np.sum(f * (state.x - x0)))
+                if done < 1:
+                    return s
+            return nsteps
+        finally:
+            fe[:] = base_e
+            if control.air[0] != 0.0:
+                fa -= f                     # the last step's air force stays
+            else:
+                fa[:] = base_a
+
+    def _step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
         m = self.model
         if self.divergence == 'covariant':
             return run_covariant(nsteps, state, control, coeff, m.faces, m.vertex_faces,
@@ -181,11 +224,14 @@ class ExplicitSolver:
         predictor: :meth:`.implicit.ImplicitSolver.forget`)."""
 
     def internal_forces(self, x: np.ndarray, coeff, out: np.ndarray) -> None:
-        """The internal force at positions x (n,3) into out (n,3) [N]."""
+        """The internal force at positions x (n,3) into out (n,3) [N]: the built-in
+        terms' and the registered ones' (:attr:`extra`)."""
         m = self.model
         if self.divergence == 'covariant':
             covariant.covariant_forces(x, m.jets, m.vertices, m.st_T, coeff.zeta, coeff.xi,
                                        coeff.phi, self.cov_work, out)
+            if self.extra:
+                out += self.extra_force(x)
             return
         nthr = self._share_threads()
         coupled = coeff.phi != 0.0
@@ -200,10 +246,14 @@ class ExplicitSolver:
                 m.jets.tr_ptr,
                 self.lanes, self.plan, self.work, 0.0, np.inf, nthr)
             out[:] = self.work.force
+            if self.extra:
+                out += self.extra_force(x)
             return
         run = _fast.elastic_forces_coupled if coupled else _fast.elastic_forces
         run(x, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
                        self.lanes, self.force_plan, self.work, out)
+        if self.extra:
+            out += self.extra_force(x)
 
 
 def internal_force_reference(model, coeff, x: np.ndarray) -> np.ndarray:

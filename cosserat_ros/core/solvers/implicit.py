@@ -11,7 +11,8 @@ based elastic materials"; Liu, Bouaziz & Kavan 2017, Eq. 2), with ``y = x + dt v
 
     Phi(x') = sum_i m_i / (2 dt^2) |x'_i - y_i|^2 + c_i / (2 dt) |x'_i - x_i|^2 + E(x')
 
-E the discrete energy of :mod:`..terms` (membrane + bending + coupling). Its gradient is
+E the discrete energy of :mod:`..terms` (membrane + bending + coupling, and any registered
+term: :mod:`..terms.registry`, whose blocks join the preconditioner). Its gradient is
 the residual ``r(x') = m (x' - y) / dt^2 + c (x' - x) / dt - f_int(x')`` and its Hessian
 ``A = (m / dt^2 + c / dt) I + H_E``. Each step minimises Phi over the free vertices (a
 pinned or held vertex moves with its prescribed velocity, as in the explicit update) by
@@ -305,7 +306,10 @@ class ImplicitSolver:
     def _energy(self, coeff, x: np.ndarray) -> float:
         """The elastic energy E(x) [J] (the terms' sum, from one pass over their fields:
         ``energy.elastic_energy``)."""
-        return elastic_energy(self.model, coeff, np.ascontiguousarray(x), self._scratch)
+        e = elastic_energy(self.model, coeff, np.ascontiguousarray(x), self._scratch)
+        for term, c in self.explicit.extra:          # the registered terms (:mod:`..terms`)
+            e += term.energy(self.model, x, c)
+        return e
 
     def _plate(self):
         """The plate operator ``bending.plate_matrix`` (COO, for D = 1 N m); built once,
@@ -422,6 +426,8 @@ class ImplicitSolver:
                   else np.zeros((n, 3, 3)))
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
+        for term, c in self.explicit.extra:          # the registered terms' own blocks
+            blocks += term.hessian_blocks(mdl, x, c)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
         if drag_dt is not None:
             blocks += drag_dt
@@ -659,7 +665,8 @@ class ImplicitSolver:
         if not np.isfinite(res):
             return None                          # a non-finite force at the start
         it = 0
-        key = (dt, coeff.zeta, coeff.xi, coeff.phi, held.tobytes(), drag is None)
+        key = (dt, coeff.zeta, coeff.xi, coeff.phi, held.tobytes(), drag is None,
+               tuple((t.name, tuple(c.values())) for t, c in self.explicit.extra))
 
         def current():
             # the mass and damping by identity, held: a material change makes new arrays

@@ -22,13 +22,21 @@ Every term module exposes, for a :class:`..model.Model`, its
   of its Hessian (or their Gauss-Newton approximation), positive semi-definite.
 
 ``test/test_terms.py`` checks each against central differences of its own energy
-(gradient) and of its own gradient (blocks). To add a physical effect: a new module
-with these three functions, one line in :data:`TERMS`, and, for the compiled step, a call
-where ``core/update.py`` says (per-vertex effects) or in the step's face loop.
+(gradient) and of its own gradient (blocks).
+
+To add a physical effect: a class with a name, its coefficients and these three methods
+(taking ``(model, x, c)``, ``c`` its own coefficient values) and one
+:func:`.registry.register` call; every solver, the energy report and the node then carry
+it (:mod:`.registry`; ``test/test_term_registry.py`` adds one from outside the package).
 """
 from . import bending, coupling, membrane
+from .registry import (Builtin, check_term, Coefficient, extra_terms, register, registered,
+                       unregister, Values)
 
 #: the variational terms, by name; the internal force is minus the sum of their gradients
 TERMS = {'membrane': membrane, 'bending': bending, 'coupling': coupling}
+for _name, _module in TERMS.items():
+    register(Builtin(_name, _module))
 
-__all__ = ['TERMS']
+__all__ = ['TERMS', 'Coefficient', 'Values', 'register', 'unregister', 'registered',
+           'extra_terms', 'check_term']
