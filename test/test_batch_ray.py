@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from cosserat_ros.batch import load_spec, plan, read_manifest, run_batch, run_episode
+from cosserat_ros.batch.spec import SpecError
 
 ROOT = Path(__file__).resolve().parent.parent
 BATCH = ROOT / '.venv' / 'lib' / 'cosserat_ros' / 'batch'
@@ -151,26 +152,86 @@ def test_one_worker_and_two_give_the_same_bytes_and_one_line_each(raytmp, tmp_pa
     assert table.num_rows == 4 and 'metric_coverage' in table.column_names
 
 
+#: a sitecustomize (Python imports it at every start of an interpreter that has its
+#: directory on the path): a Ray worker process (default_worker.py) notes its pid in that
+#: directory, then sleeps $COSSERAT_TEST_SLOW_START seconds before it runs anything, as
+#: a busy host or a cold cache stretches a worker's start-up
+SLOW_START = """import os
+import time
+
+if b'default_worker.py' in open('/proc/self/cmdline', 'rb').read():
+    open(os.path.join(os.path.dirname(__file__), 'started.%d' % os.getpid()), 'w').close()
+    time.sleep(float(os.environ['COSSERAT_TEST_SLOW_START']))
+"""
+
+
+def _slow_worker_start(tmp_path: Path, monkeypatch, seconds: float) -> Path:
+    """Every Ray worker this test's Ray starts sleeps ``seconds`` first (SLOW_START, on
+    PYTHONPATH); returns the directory where each notes its pid. Also puts test/data
+    (the scripts of batch_script.py) on the path. Ray starts its workers when a task
+    needs one, not ahead at ``ray.init`` (which would wait for them), and gives them
+    more than its default 60 s to register."""
+    monkeypatch.setenv('RAY_prestart_worker_first_driver', '0')
+    monkeypatch.setenv('RAY_enable_worker_prestart', '0')
+    monkeypatch.setenv('RAY_worker_register_timeout_seconds', '600')
+    slow = tmp_path / 'slow_start'
+    slow.mkdir()
+    (slow / 'sitecustomize.py').write_text(SLOW_START)
+    data = str(Path(__file__).resolve().parent / 'data')
+    monkeypatch.syspath_prepend(data)
+    monkeypatch.setenv('PYTHONPATH', os.pathsep.join(
+        [str(slow), data] + [p for p in [os.environ.get('PYTHONPATH')] if p]))
+    monkeypatch.setenv('COSSERAT_TEST_SLOW_START', str(seconds))
+    return slow
+
+
 def test_a_timed_out_episode_is_retried_then_given_up_with_the_reason(raytmp, tmp_path,
                                                                       monkeypatch):
     """A policy that hangs (a user's script) is cancelled at the timeout, tried again
-    --max-retries times, then recorded failed; the other episodes are not held up."""
-    data = str(Path(__file__).resolve().parent / 'data')
-    monkeypatch.syspath_prepend(data)
-    monkeypatch.setenv('PYTHONPATH', data + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    --max-retries times, then recorded failed; the other episodes are not held up. The
+    timeout counts from the episode's start in its worker, after the worker's start-up:
+    here every worker starts 25 s late (as on a busy host, issue 60), and the episodes
+    that do not hang still run at their first attempt (counted from the submission, as
+    the timeout was, the first attempts ran past it). The 20 s are the episode's own,
+    generous on a busy host for an episode that runs in about a second."""
+    slow = _slow_worker_start(tmp_path, monkeypatch, 25.0)
     s = load_spec(spec(episodes=3, policy={'script': 'batch_script:hang_first'}))
-    # the timeout is a wall-clock safety net, so the episodes that do not hang must end
-    # well within it on a busy host too: a fresh worker loads its kernels first (8 s was
-    # too short beside two busy processes)
-    summary = run_batch(s, tmp_path / 'out', workers=2, max_retries=1, episode_timeout=40.0)
+    summary = run_batch(s, tmp_path / 'out', workers=2, max_retries=1, episode_timeout=20.0)
     lines = {ln['id']: ln for ln in read_manifest(tmp_path / 'out')}
+    # the others ran at their first attempt, late start and all
+    assert [(lines[i]['status'], lines[i]['attempts']) for i in ('000001', '000002')] == [
+        ('ok', 1), ('ok', 1)], lines
     assert summary['ok'] == 2 and summary['failed'] == 1
     hung = lines['000000']
     assert hung['status'] == 'failed' and hung['attempts'] == 2
-    assert hung['error'] == 'gave up after 2 attempts: ran past the episode timeout of 40 s'
+    assert hung['error'] == 'gave up after 2 attempts: ran past the episode timeout of 20 s'
     assert not hung['deterministic']
     assert not (tmp_path / 'out' / 'episodes' / '000000').exists()
-    assert [lines[i]['status'] for i in ('000001', '000002')] == ['ok', 'ok']
+    assert len(list(slow.glob('started.*'))) >= 2        # the workers did start late
+
+
+def test_a_worker_stuck_in_its_start_up_is_caught_at_the_start_up_limit(raytmp, tmp_path,
+                                                                        monkeypatch):
+    """An attempt whose worker does not get ready within the start-up limit is cancelled
+    and retried like one past the episode timeout (the default limit is 1800 s; 5 s
+    here, against workers that take 120 s to start)."""
+    _slow_worker_start(tmp_path, monkeypatch, 120.0)
+    summary = run_batch(spec(episodes=2), tmp_path / 'out', workers=2, max_retries=1,
+                        episode_timeout=60.0, startup_timeout=5.0)
+    assert summary['ok'] == 0 and summary['failed'] == 2
+    for ln in read_manifest(tmp_path / 'out'):
+        assert ln['attempts'] == 2 and not ln['deterministic']
+        assert ln['error'] == ('gave up after 2 attempts: did not start within the '
+                               'start-up limit of 5 s')
+    assert not any((tmp_path / 'out' / 'episodes').iterdir())
+
+
+@pytest.mark.parametrize('bad', [{'episode_timeout': 0}, {'startup_timeout': -1.0},
+                                 {'startup_timeout': float('inf')}])
+def test_a_bad_timeout_is_refused_before_any_work(tmp_path, bad):
+    with pytest.raises(SpecError, match='timeout must be positive seconds'):
+        run_batch(spec(episodes=1), tmp_path / 'out', **bad)
+    assert not (tmp_path / 'out').exists()
 
 
 def test_the_driver_killed_leaves_no_ray_process_and_resume_finishes(raytmp, tmp_path):

@@ -1,7 +1,8 @@
 """``batch``: randomized cloth episodes on Ray, and what to look at afterwards::
 
     batch run SPEC.yaml -o OUT [--workers N] [--threads T] [--address ADDR] [--resume]
-              [--max-retries K] [--episode-timeout S] [--progress bar|jsonl|none]
+              [--max-retries K] [--episode-timeout S] [--startup-timeout S]
+              [--progress bar|jsonl|none]
     batch status OUT                 # counts by status, rate, what failed and why
     batch verify OUT                 # exit 0 only if every ok episode's bag is sound
     batch montage OUT -o FILE.png    # the episodes' last frames in a grid
@@ -48,7 +49,14 @@ def _parser() -> argparse.ArgumentParser:
                    help='more attempts of an episode whose worker or node died or that '
                    'timed out (default 2)')
     r.add_argument('--episode-timeout', type=float, default=None,
-                   help='wall-clock seconds an attempt may take (default: no limit)')
+                   help='wall-clock seconds an episode may run, counted from its start '
+                   'in its worker, after the worker\'s start-up and kernel loading '
+                   '(default: no limit)')
+    r.add_argument('--startup-timeout', type=float, default=None,
+                   help='wall-clock seconds from an attempt\'s submission to its '
+                   'episode\'s start: the wait for a CPU, the worker\'s start, its '
+                   'imports and kernels (default: 1800 with --episode-timeout, else no '
+                   'limit)')
     r.add_argument('--progress', default='bar', choices=('bar', 'jsonl', 'none'))
     s = sub.add_parser('status', help='counts by status, rate, failures')
     s.add_argument('out')
@@ -212,6 +220,7 @@ def main(argv=None) -> int:
                                 address=args.address, resume=args.resume,
                                 max_retries=args.max_retries,
                                 episode_timeout=args.episode_timeout,
+                                startup_timeout=args.startup_timeout,
                                 progress=args.progress)
             print(f'batch: {summary["episodes"]} episodes in {summary["out"]}: '
                   f'{summary["ok"]} ok, {summary["failed"]} failed ({summary["ran"]} run '

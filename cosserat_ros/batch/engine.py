@@ -15,11 +15,32 @@ A task runs :func:`.episode.run_episode` into a temporary directory on its own n
 returns the episode's files; the driver writes them, so the cluster needs no shared file
 system.
 
+**Timeouts.** An episode's task (a Ray streaming generator task) first readies its
+worker (below), then yields :data:`STARTED`, then the episode's result.
+``episode_timeout`` counts from the driver's receipt of that marker: it bounds the
+episode's own run, not the wait for a CPU, a fresh worker's start, its imports and its
+kernels' loading, which on a busy host take a minute or more and had timed out episodes
+that had not begun (issue 60). Those have a limit of their own, ``startup_timeout``, from
+the submission to the marker, so that a worker stuck in its start-up is caught too. Its
+default, :data:`STARTUP_TIMEOUT`, applies when an episode timeout is set (with neither
+limit set nothing is timed): 1800 s, generous because a cold compile cache means
+compiling every kernel, which took 12 minutes on a 2-core host under a load of 8. An
+attempt past either limit is cancelled (its worker killed) and run again as below; what
+a killed worker had compiled stays in the cache. Ray Client (``ray://``) runs no
+streaming task, so there the driver cannot see an episode start: an attempt may take the
+start-up limit plus the episode timeout from its submission.
+
+**Readying a worker.** Before its first episode a worker imports what an episode runs
+and loads (or compiles) its kernels, by running that episode's scene for two steps
+without its policy into a throwaway directory (once per worker process: about the cost
+of building the scene once more), and imports a script policy's module; what fails there
+is left for the episode itself to meet.
+
 **Exactly once.** Only the driver writes ``OUT``: it stages an episode's files under
 ``OUT/.tmp/``, renames the directory into ``OUT/episodes/<id>`` (atomic), then appends the
 episode's line to ``OUT/manifest.jsonl`` (flushed and synced), and never a second line for
 an id that has one. A task whose worker died, whose node was lost or that ran past
-``episode_timeout`` (then cancelled) is submitted again, up to ``max_retries`` more times,
+a timeout (then cancelled) is submitted again, up to ``max_retries`` more times,
 and the line says how many ``attempts`` it took; a failure any attempt would meet (a
 refused parameter, a diverged simulation) is recorded at once, not retried. ``resume``
 reads the manifest (a torn last line is dropped), adopts an episode directory that was
@@ -49,6 +70,11 @@ MANIFEST = 'manifest.jsonl'
 SPEC_FILE = 'spec.json'
 #: [s] how long the driver waits on Ray between looks at the timeouts and the progress
 POLL = 0.5
+#: [s] the start-up limit with an episode timeout and no ``startup_timeout`` of its own:
+#: from an attempt's submission to its episode's start in a worker (module docstring)
+STARTUP_TIMEOUT = 1800.0
+#: what an episode's task yields once its worker is ready, before the episode runs
+STARTED = 'started'
 
 
 def read_manifest(out_dir, repair: bool = False) -> List[dict]:
@@ -113,13 +139,47 @@ class Progress:
 
 
 # ---------------------------------------------------------------- the task
+_worker_ready = False          # in a Ray worker: whether _ready_worker has run there
+
+
+def _ready_worker(episode: dict) -> None:
+    """Once per worker process, before its first episode: import what an episode runs
+    and load (or compile) its kernels by running ``episode``'s scene for two steps
+    without its policy into a throwaway directory; import a script policy's module.
+    A failure here is left for the episode itself to meet."""
+    global _worker_ready
+    if _worker_ready:
+        return
+    _worker_ready = True
+    from ..ros.scene import check_parameters
+    from .episode import run_episode
+    from .spec import resolve_script
+    policy = episode['policy']
+    if policy.get('kind') == 'script':
+        try:
+            resolve_script(policy['target'])
+        except Exception:                          # noqa: BLE001 (the episode says why)
+            pass
+    tmp = Path(tempfile.mkdtemp(prefix='cosserat_ready_'))
+    try:
+        dt = float(check_parameters(episode['params'])['dt'])
+        run_episode(dict(episode, duration=2 * dt, policy={'kind': 'none'}), tmp)
+    except Exception:                              # noqa: BLE001 (the episode says why)
+        pass
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def _episode_task(episode: dict, threads: int):
-    """In a Ray worker: run one episode with ``threads`` numba threads into a local
-    temporary directory and return (result, {relative path: bytes})."""
+    """In a Ray worker, a streaming generator task: with ``threads`` numba threads, ready
+    the worker (:func:`_ready_worker`), yield :data:`STARTED`, then run the episode into a
+    local temporary directory and yield (result, {relative path: bytes})."""
     import numba
     import ray
     from .episode import run_episode
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    _ready_worker(episode)
+    yield STARTED
     tmp = Path(tempfile.mkdtemp(prefix='cosserat_batch_'))
     try:
         result = run_episode(episode, tmp)
@@ -128,9 +188,16 @@ def _episode_task(episode: dict, threads: int):
                  for p in sorted(root.rglob('*')) if p.is_file()}
         result['node'] = ray.get_runtime_context().get_node_id()
         result['numba_threads'] = numba.get_num_threads()
-        return result, files
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    yield result, files
+
+
+def _episode_task_whole(episode: dict, threads: int):
+    """:func:`_episode_task` as a plain task returning its last item (Ray Client runs no
+    streaming generator task)."""
+    *_, last = _episode_task(episode, threads)
+    return last
 
 
 # ---------------------------------------------------------------- the run directory
@@ -265,12 +332,18 @@ def _threads(workers: int, asked: Optional[int] = None) -> int:
 def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[str] = None,
               resume: bool = False, max_retries: int = 2,
               episode_timeout: Optional[float] = None, progress: str = 'none',
-              ray_temp_dir: Optional[str] = None, threads: Optional[int] = None) -> dict:
+              ray_temp_dir: Optional[str] = None, threads: Optional[int] = None,
+              startup_timeout: Optional[float] = None) -> dict:
     """Run every episode of ``spec`` (a path, a dict or :func:`.spec.load_spec`'s result)
     into ``out_dir`` on Ray (module docstring); returns the summary (counts, paths).
     ``workers``: episodes at once (default: the cluster's CPUs); ``threads``: numba
-    threads of each (default: the CPUs over the workers). :class:`.spec.SpecError` for
-    a bad spec, option or directory, before any work."""
+    threads of each (default: the CPUs over the workers). ``episode_timeout`` [s]: how
+    long an episode may run, counted from its start in its worker (after the worker's
+    start-up and kernel loading); ``startup_timeout`` [s]: how long an attempt may take
+    from its submission to that start (default :data:`STARTUP_TIMEOUT` with an episode
+    timeout, else no limit). An attempt past either is cancelled and retried, up to
+    ``max_retries`` more times. :class:`.spec.SpecError` for a bad spec, option or
+    directory, before any work."""
     spec = load_spec(spec)
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise SpecError(f'--workers must be a positive integer, got {workers!r}')
@@ -282,6 +355,12 @@ def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[st
                                             and math.isfinite(episode_timeout)):
         raise SpecError(f'--episode-timeout must be positive seconds, got '
                         f'{episode_timeout!r}')
+    if startup_timeout is not None and not (startup_timeout > 0
+                                            and math.isfinite(startup_timeout)):
+        raise SpecError(f'--startup-timeout must be positive seconds, got '
+                        f'{startup_timeout!r}')
+    if startup_timeout is None and episode_timeout is not None:
+        startup_timeout = STARTUP_TIMEOUT
     episodes = plan(spec)
     out = Path(out_dir)
     lock = _prepare(out, spec, resume)
@@ -307,7 +386,7 @@ def run_batch(spec, out_dir, workers: Optional[int] = None, address: Optional[st
                         sum(ln['status'] != 'ok' for ln in manifest.lines.values()))
         if todo:
             _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retries,
-                        episode_timeout, ray_temp_dir)
+                        episode_timeout, startup_timeout, ray_temp_dir)
         prog.close()
     finally:
         manifest.close()
@@ -328,24 +407,38 @@ def _failed_line(ep: Episode, error: str, attempts: int, deterministic: bool = T
 
 
 def _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retries, timeout,
-                ray_temp_dir):
+                startup, ray_temp_dir):
     import ray
     from ray import exceptions as rex
+    from ray.util.client import ray as client
     from . import reaper
     watcher = _ray_init(address, ray_temp_dir)
     try:
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get('CPU', 1)))
         threads = _threads(workers, threads)
-        task = ray.remote(_episode_task).options(num_cpus=threads, max_retries=0,
-                                                 name='cosserat_episode')
+        options = dict(num_cpus=threads, max_retries=0, name='cosserat_episode')
+        streaming = not client.is_connected()
+        if streaming:
+            task = ray.remote(_episode_task).options(num_returns='streaming', **options)
+            why_start = (f'did not start within the start-up limit of {startup:g} s'
+                         if startup is not None else '')
+        else:       # Ray Client streams nothing: one limit for both, from the submission
+            task = ray.remote(_episode_task_whole).options(**options)
+            if timeout is not None:
+                why_start = (f'ran past the start-up limit plus the episode timeout '
+                             f'({startup:g} s + {timeout:g} s)')
+                startup += timeout
+            else:
+                startup = None
         pending = list(reversed(todo))          # popped from the end: in index order
         attempts: Dict[str, int] = {}
-        inflight: Dict[object, tuple] = {}     # ref -> (episode, submitted at)
+        # a task (generator) -> (episode, started, since: submitted or started at)
+        inflight: Dict[object, tuple] = {}
 
         def submit(ep):
             attempts[ep.id] = attempts.get(ep.id, 0) + 1
-            inflight[task.remote(ep.to_dict(), threads)] = (ep, time.monotonic())
+            inflight[task.remote(ep.to_dict(), threads)] = (ep, False, time.monotonic())
 
         def retry_or_fail(ep, why: str):
             if attempts[ep.id] <= max_retries:
@@ -361,26 +454,37 @@ def _run_on_ray(todo, out, manifest, prog, workers, threads, address, max_retrie
                 submit(pending.pop())
             ready, _ = ray.wait(list(inflight), num_returns=1, timeout=POLL)
             for ref in ready:
-                ep, _t = inflight.pop(ref)
+                ep = inflight[ref][0]
                 try:
-                    result, files = ray.get(ref)
+                    item = ray.get(next(ref) if streaming else ref)
+                except StopIteration:
+                    del inflight[ref]
+                    retry_or_fail(ep, 'its task ended without a result')
+                    continue
                 except (rex.WorkerCrashedError, rex.NodeDiedError, rex.TaskCancelledError,
                         rex.ObjectLostError, rex.RaySystemError, rex.OutOfMemoryError,
                         rex.RayTaskError) as exc:
+                    del inflight[ref]
                     retry_or_fail(ep, str(exc).strip().splitlines()[0] if str(exc).strip()
                                   else type(exc).__name__)
                     continue
+                if isinstance(item, str) and item == STARTED:
+                    inflight[ref] = (ep, True, time.monotonic())    # the episode's clock
+                    continue
+                del inflight[ref]
+                result, files = item
                 result['attempts'] = attempts[ep.id]
                 result = _commit(out, result, files)
                 if manifest.add(result):
                     prog.update(result)
-            if timeout is not None:
-                now = time.monotonic()
-                for ref, (ep, t0) in list(inflight.items()):
-                    if now - t0 > timeout:
-                        ray.cancel(ref, force=True)
-                        del inflight[ref]
-                        retry_or_fail(ep, f'ran past the episode timeout of {timeout:g} s')
+            now = time.monotonic()
+            for ref, (ep, started, since) in list(inflight.items()):
+                limit = timeout if started else startup
+                if limit is not None and now - since > limit:
+                    ray.cancel(ref, force=True)
+                    del inflight[ref]
+                    retry_or_fail(ep, f'ran past the episode timeout of {timeout:g} s'
+                                  if started else why_start)
             if not ready:
                 prog.update()
     finally:
