@@ -1006,7 +1006,7 @@ class ClothSimulator:
             k = int(np.argmax(np.abs(stiff0)))
             scale = stiff[k] / stiff0[k] if stiff0[k] else 0.0
             # (not with registered terms: their stiffness does not scale with the material)
-            if (scale > 0 and not self._terms
+            if (scale > 0 and not registry.acting(self._terms)
                     and np.allclose(stiff, scale * stiff0, rtol=1e-12, atol=0.0)):
                 w2 = w0 * scale * m0.density / material.density
             else:

@@ -26,6 +26,7 @@ from ..air import air_pass
 from ..compiled import kernel
 from ..constants import FUSE_MIN_VERTICES, TILE_VERTICES, VERTEX_CHUNK
 from ..terms import covariant, TERMS
+from ..terms.registry import acting
 from ..state import Control, State
 from ..update import advance_vertex, contact_range
 
@@ -160,14 +161,14 @@ class ExplicitSolver:
     def step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
         """Advance ``nsteps`` steps in place; returns the steps completed (fewer means the
         next one diverged and ``state`` is invalid: the caller restores it)."""
-        if self.extra:
+        if acting(self.extra):
             return self._step_with_terms(nsteps, state, control, coeff, dt, vmax2)
         return self._step(nsteps, state, control, coeff, dt, vmax2)
 
     def extra_force(self, x: np.ndarray) -> np.ndarray:
         """-sum of the registered terms' gradients at x (n,3) [N] (:attr:`extra`)."""
         f = np.zeros_like(x)
-        for term, c in self.extra:
+        for term, c in acting(self.extra):
             f -= term.gradient(self.model, x, c)
         return f
 
@@ -230,7 +231,7 @@ class ExplicitSolver:
         if self.divergence == 'covariant':
             covariant.covariant_forces(x, m.jets, m.vertices, m.st_T, coeff.zeta, coeff.xi,
                                        coeff.phi, self.cov_work, out)
-            if self.extra:
+            if acting(self.extra):
                 out += self.extra_force(x)
             return
         nthr = self._share_threads()
@@ -246,13 +247,13 @@ class ExplicitSolver:
                 m.jets.tr_ptr,
                 self.lanes, self.plan, self.work, 0.0, np.inf, nthr)
             out[:] = self.work.force
-            if self.extra:
+            if acting(self.extra):
                 out += self.extra_force(x)
             return
         run = _fast.elastic_forces_coupled if coupled else _fast.elastic_forces
         run(x, coeff, m.faces, m.vertex_faces, m.vertices, m.jets.tr_ptr,
                        self.lanes, self.force_plan, self.work, out)
-        if self.extra:
+        if acting(self.extra):
             out += self.extra_force(x)
 
 

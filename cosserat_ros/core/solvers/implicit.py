@@ -127,6 +127,7 @@ from ..air import air_pass, drag_blocks
 from ..constants import VERTEX_CHUNK
 from ..energy import elastic_energy
 from ..terms import TERMS
+from ..terms.registry import acting
 from ..terms.jet import model_scratch
 from ..terms.membrane import add_compression_product, compressed_faces, compression_stress
 from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, push_list
@@ -307,7 +308,7 @@ class ImplicitSolver:
         """The elastic energy E(x) [J] (the terms' sum, from one pass over their fields:
         ``energy.elastic_energy``)."""
         e = elastic_energy(self.model, coeff, np.ascontiguousarray(x), self._scratch)
-        for term, c in self.explicit.extra:          # the registered terms (:mod:`..terms`)
+        for term, c in acting(self.explicit.extra):   # the registered terms (:mod:`..terms`)
             e += term.energy(self.model, x, c)
         return e
 
@@ -426,7 +427,7 @@ class ImplicitSolver:
                   else np.zeros((n, 3, 3)))
         if coeff.phi != 0.0:
             blocks += TERMS['coupling'].hessian_blocks(mdl, coeff, x)
-        for term, c in self.explicit.extra:          # the registered terms' own blocks
+        for term, c in acting(self.explicit.extra):   # the registered terms' own blocks
             blocks += term.hessian_blocks(mdl, x, c)
         blocks[:, [0, 1, 2], [0, 1, 2]] += diag
         if drag_dt is not None:
@@ -666,7 +667,7 @@ class ImplicitSolver:
             return None                          # a non-finite force at the start
         it = 0
         key = (dt, coeff.zeta, coeff.xi, coeff.phi, held.tobytes(), drag is None,
-               tuple((t.name, tuple(c.values())) for t, c in self.explicit.extra))
+               tuple((t.name, tuple(c.values())) for t, c in acting(self.explicit.extra)))
 
         def current():
             # the mass and damping by identity, held: a material change makes new arrays

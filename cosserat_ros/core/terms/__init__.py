@@ -30,6 +30,7 @@ To add a physical effect: a class with a name, its coefficients and these three 
 it (:mod:`.registry`; ``test/test_term_registry.py`` adds one from outside the package).
 """
 from . import bending, coupling, membrane
+from .stiffening import Stiffening
 from .registry import (Builtin, check_term, Coefficient, extra_terms, register, registered,
                        unregister, Values)
 
@@ -37,6 +38,7 @@ from .registry import (Builtin, check_term, Coefficient, extra_terms, register, 
 TERMS = {'membrane': membrane, 'bending': bending, 'coupling': coupling}
 for _name, _module in TERMS.items():
     register(Builtin(_name, _module))
+register(Stiffening())                  # strain stiffening past a knee, off by default
 
 __all__ = ['TERMS', 'Coefficient', 'Values', 'register', 'unregister', 'registered',
            'extra_terms', 'check_term']

@@ -9,6 +9,9 @@ A term is an object with a ``name``, its ``coefficients`` (a tuple of
     hessian_blocks(model, x, c)  -> (n,3,3) [N/m], the per-vertex diagonal blocks of its
                                     Hessian (or their Gauss-Newton approximation), PSD
 
+and optionally ``active(c) -> bool``: False where the coefficients make it vanish (a
+stiffness of 0), so that the solvers skip it and a term off by default changes nothing.
+
 :func:`register` adds one; every :class:`~cosserat_ros.core.simulator.ClothSimulator`
 built afterwards carries it, with its coefficients' defaults unless given
 (``ClothSimulator(..., terms={'tether': {'k': 50.0}})``, ``set_term``). Where it acts:
@@ -38,7 +41,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 
 __all__ = ['Coefficient', 'Values', 'Builtin', 'register', 'unregister', 'registered',
-           'extra_terms', 'values_of', 'check_term']
+           'extra_terms', 'values_of', 'check_term', 'acting']
 
 
 @dataclass(frozen=True)
@@ -148,6 +151,12 @@ def registered() -> List[str]:
 def extra_terms() -> List[object]:
     """The registered terms that are not built in, in registration order."""
     return [t for t in REGISTRY.values() if not getattr(t, 'builtin', False)]
+
+
+def acting(pairs) -> list:
+    """The (term, values) pairs whose term acts with these values (``active``, if the
+    term has one, says so)."""
+    return [(t, c) for t, c in pairs if getattr(t, 'active', None) is None or t.active(c)]
 
 
 def values_of(term, given=None) -> Values:
