@@ -8,6 +8,10 @@ simulation time: its node has ``use_sim_time`` true, so its clock is the node's 
 and every wait and every stamp is in simulation seconds, which gives the same motion at
 any real-time factor (a busy host, or the node's ``real_time_factor``). Wall-clock limits
 are safety nets only: ``--wait`` for the node to appear, ``--timeout`` for the whole run.
+
+On a terminal, a progress line on stderr says how long the demo has waited for the node
+and then how many of its simulation seconds are done (:meth:`DemoPeer.plan`); a pipe or a
+file gets none of it (:mod:`.progress`).
 """
 from __future__ import annotations
 
@@ -53,13 +57,17 @@ class DemoPeer:
     subscribed to ``/<node>/points`` (sensor_msgs/PointCloud2, :meth:`points` the latest
     cloud's xyz), ``/<node>/rejections`` (diagnostic_msgs/DiagnosticStatus, kept in
     :attr:`rejections`) and ``/<node>/energy`` (an ERROR status: diverged);
-    :meth:`check` raises :class:`Refused` on the first rejection or a divergence."""
+    :meth:`check` raises :class:`Refused` on the first rejection or a divergence.
+    :attr:`progress` is the demo's progress line (:meth:`plan`, :meth:`say`)."""
 
     def __init__(self, name: str, node: str, argv=None, timeout: float = 1800.0):
         import rclpy
         from rclpy.parameter import Parameter
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
         from sensor_msgs.msg import PointCloud2
+        from .progress import Progress
+        self.progress = Progress(name)           # on a terminal only
+        self._plan = None                        # (start, total) [s of simulation time]
         rclpy.init(args=argv)
         self.node = rclpy.create_node(
             name, parameter_overrides=[Parameter('use_sim_time', value=True)])
@@ -82,19 +90,37 @@ class DemoPeer:
 
     def spin_once(self, timeout: float = 0.01) -> bool:
         """Handle what has arrived (waiting at most ``timeout`` wall s); True if a new
-        cloud came in."""
+        cloud came in. Updates the progress line of :meth:`plan`."""
         import rclpy
         n = len(self.clouds)
         rclpy.spin_once(self.node, timeout_sec=timeout)
+        if self._plan is not None:
+            start, total = self._plan
+            done = min(max(self.sim_now() - start, 0.0), total)
+            self.progress.update(f'{done:.1f} of {total:.1f} s of simulation time')
         return len(self.clouds) > n
+
+    def plan(self, total: float) -> None:
+        """From now on the progress line counts the simulation seconds done of ``total``."""
+        self._plan = (self.sim_now(), float(total))
+
+    def say(self, text: str) -> None:
+        """Print ``text`` (a line of the demo's output) without mixing it into the
+        progress line."""
+        self.progress.clear()
+        print(text, flush=True)
 
     def wait_for(self, ready, seconds: float) -> bool:
         """Spin until a cloud and the clock have arrived and ``ready()`` holds, or
         ``seconds`` of wall time have passed; True if they came."""
-        end = time.monotonic() + seconds
+        start = time.monotonic()
+        end = start + seconds
         while time.monotonic() < end and not (self.clouds and self.sim_now() > 0
                                               and ready()):
+            self.progress.update(f'waiting for {self.base} ({time.monotonic() - start:.0f} '
+                                 f's of --wait {seconds:g})')
             self.spin_once(0.1)
+        self.progress.clear()
         return bool(self.clouds) and self.sim_now() > 0
 
     def sim_now(self) -> float:
@@ -136,7 +162,17 @@ class DemoPeer:
         ns = int(round(t * 1e9))
         header.stamp.sec, header.stamp.nanosec = ns // 10 ** 9, ns % 10 ** 9
 
+    def finish(self) -> None:
+        """End the progress line with the simulation seconds the demo took, before its
+        result."""
+        if self._plan is not None and self.progress.enabled:
+            self.progress.done(f'{self.sim_now() - self._plan[0]:.1f} s of simulation '
+                               'time, done')
+        self.progress.done()
+        self._plan = None
+
     def close(self) -> None:
         import rclpy
+        self.progress.done()
         self.node.destroy_node()
         rclpy.try_shutdown()

@@ -12,7 +12,7 @@ above half the flag's length) and fluttered (the free edge's sideways position v
 more than 2 cm over the last half of the run). Prints what it measured; exit 0 if it flew, 1
 if not or if the node refused a message (its reason printed), 2 if the node is not there.
 Needs ``air.enabled: true``, ``publish.points: true`` and ``publish_clock: true`` (flag.yaml
-has them).
+has them). On a terminal, a progress line on stderr counts the simulation seconds done.
 
 Why gusts: the air model (``core/air.py``) is local, each triangle pushed by its own
 relative velocity, with no wake, so in a steady wind a flag settles into a steady shape,
@@ -66,6 +66,7 @@ def main(argv=None) -> int:
         length = x0[:, 0].max() - pole
         free = x0[:, 0] > pole + 0.97 * length
         t0 = peer.sim_now()
+        peer.plan(a.duration)
         side, out = [], []
         steps = int(round(a.duration * RATE))
         k = 0
@@ -83,6 +84,7 @@ def main(argv=None) -> int:
                 side.append(p[:, 1].mean())
                 out.append(p[:, 0].mean() - pole)
             peer.check()
+        peer.finish()
         if not out:
             print('flag_demo: error: the node published no points during the run',
                   file=sys.stderr)
@@ -94,6 +96,7 @@ def main(argv=None) -> int:
               f'{a.duration / 2:g} s: {"flew" if flew else "did NOT fly"}')
         return 0 if flew else 1
     except (Refused, TimeoutError) as exc:
+        peer.finish()
         print(f'flag_demo: error: {exc}', file=sys.stderr)
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):    # Ctrl-C, SIGTERM

@@ -11,7 +11,8 @@ settle. Then it reads ``~/points`` and checks the fold: the vertices that starte
 0.1 width of the grasped edge must end on the far half, and the cloth must lie on the
 ground (every vertex below 5 cm). Prints what it measured; exit 0 if folded, 1 if not or
 if the node refused a command (its reason printed), 2 if the node is not there. Needs
-``publish.points: true`` and ``publish_clock: true`` (fold.yaml has them).
+``publish.points: true`` and ``publish_clock: true`` (fold.yaml has them). On a terminal, a
+progress line on stderr counts the simulation seconds done.
 
 It runs on simulation time (its node has ``use_sim_time``; the clock is the node's
 ``/clock``): every target is stamped with the simulation time at which the handle must be
@@ -90,6 +91,9 @@ def main(argv=None) -> int:
                   f'(publish_clock) or handle services after {a.wait:g} s: start the node '
                   'with config/fold.yaml', file=sys.stderr)
             return 2
+        # settle 1, place 0.3, carry LEAD + duration, hold 0.3, settle (the grasps'
+        # service calls add a few ticks)
+        peer.plan(1.0 + 0.3 + LEAD + a.duration + 0.3 + a.settle)
         peer.wait_sim(1.0)                               # let the cloth settle on the ground
         x0 = points()
         lo, hi = x0.min(axis=0), x0.max(axis=0)
@@ -102,10 +106,11 @@ def main(argv=None) -> int:
         for name in corners:
             res = call(name, True)
             if res is None or not res.success:
+                peer.finish()
                 print(f'fold_demo: error: grasp {name}: '
                       f'{res.message if res else "no answer"}', file=sys.stderr)
                 return 1
-            print(f'fold_demo: {res.message}')
+            peer.say(f'fold_demo: {res.message}')
         steps = int(round(a.duration * RATE))
         t0 = peer.sim_now() + LEAD
         k = 1
@@ -126,11 +131,13 @@ def main(argv=None) -> int:
         over = float(np.mean(x1[edge, 0] > mid))
         top = float(x1[:, 2].max())
         folded = over == 1.0 and top < 0.05
+        peer.finish()
         print(f'fold_demo: {over:.0%} of the grasped edge\'s vertices ended on the far half '
               f'(x > {mid:.3f} m), highest vertex at z = {top:.3f} m: '
               f'{"folded" if folded else "NOT folded"}')
         return 0 if folded else 1
     except (Refused, TimeoutError) as exc:
+        peer.finish()
         print(f'fold_demo: error: {exc}', file=sys.stderr)
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):    # Ctrl-C, SIGTERM

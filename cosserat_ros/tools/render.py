@@ -17,6 +17,10 @@ frame. ``--live SECONDS`` collects SECONDS of simulation time from the first mes
 meshes stamped within SECONDS of it; a ``~/reset`` does not restart the count), however
 long that takes on the wall clock; ``--wait`` (for the first mesh) and ``--timeout`` (the
 whole collection) are the wall-clock limits.
+
+On a terminal, a progress line on stderr counts what is done (messages read, meshes
+decoded, pictures and animation frames drawn of how many, simulation seconds collected);
+a pipe or a file gets none of it (:mod:`.progress`).
 """
 from __future__ import annotations
 
@@ -103,12 +107,14 @@ def check_times(times, ts: np.ndarray) -> None:
         raise TimesOutsideBag(f'--times {which}: the meshes span {lo:.3f} s to {hi:.3f} s '
                               'of simulation time')
 
-def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str = ''):
+def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str = '',
+             progress=None):
     """Raw mesh and energy messages of a rosbag2 directory, in recording order, and the
     obstacle marker arrays as (the index of the first mesh recorded after it, raw): a
     mesh is drawn with the last array recorded before it. By recording order, not by
     time: a bag spanning a ``~/reset`` has the node's times twice (``record`` keeps its
-    log times going forward, the messages keep their stamps)."""
+    log times going forward, the messages keep their stamps). ``progress``: a
+    :class:`.progress.Progress` told how many messages were read."""
     from rosbags.highlevel import AnyReader
     meshes, energies, obstacles = [], [], []
     with AnyReader([Path(path)]) as reader:
@@ -116,11 +122,15 @@ def read_bag(path: Path, mesh_topic: str, energy_topic: str, obstacle_topic: str
                  if c.topic in (mesh_topic, energy_topic, obstacle_topic)]
         if not any(c.topic == mesh_topic for c in conns):
             raise SystemExit(f'render: {path} has no {mesh_topic} messages')
+        total = sum(c.msgcount for c in conns)
         for conn, t, raw in reader.messages(connections=conns):
             if conn.topic == obstacle_topic:
                 obstacles.append((len(meshes), bytes(raw)))
             else:
                 (meshes if conn.topic == mesh_topic else energies).append(bytes(raw))
+            if progress is not None:
+                progress.update(f'reading {Path(path).name}: message '
+                                f'{len(meshes) + len(energies) + len(obstacles)} of {total}')
     return meshes, energies, obstacles
 
 
@@ -266,21 +276,29 @@ def energy_plot(energies, path: Path):
 
 
 def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
-           frames: int = 60, obstacles=()) -> List[Path]:
+           frames: int = 60, obstacles=(), progress=None) -> List[Path]:
     """Pictures, animation and energy plot of the mesh messages (module docstring);
     ``times``: the simulation times [s] to draw (the nearest mesh each; one outside the
     meshes' range raises :class:`TimesOutsideBag` before anything is written; None: first,
     middle and last); ``obstacles``: (index of the first mesh it applies to, raw
-    ~/obstacle_markers) in recording order (:func:`read_bag`)."""
+    ~/obstacle_markers) in recording order (:func:`read_bag`); ``progress``: a
+    :class:`.progress.Progress` told what is being drawn, of how many."""
     if not meshes:
         raise SystemExit('render: no mesh messages to draw')
+
+    def say(text):
+        if progress is not None:
+            progress.update(text)
     if times:
         ts = mesh_times(meshes)
         check_times(times, ts)            # before anything is written
         ts = np.where(np.isfinite(ts), ts, np.inf)
     out.mkdir(parents=True, exist_ok=True)
     pick = np.unique(np.linspace(0, len(meshes) - 1, min(frames, len(meshes))).astype(int))
-    decoded = {i: _decode_mesh(meshes[i]) for i in pick}
+    decoded = {}
+    for k, i in enumerate(pick):
+        say(f'decoding mesh {k + 1} of {len(pick)}')
+        decoded[i] = _decode_mesh(meshes[i])
     written = []
     if times:                             # the nearest of all meshes, not only the frames'
         chosen = sorted({int(np.argmin(np.abs(ts - t))) for t in times})
@@ -302,7 +320,8 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
         if k not in shapes:
             shapes[k] = obstacle_polygons(obstacles[k][1], centre, radius)
         return shapes[k]
-    for i in chosen:
+    for k, i in enumerate(chosen):
+        say(f'picture {k + 1} of {len(chosen)}')
         fig = plt.figure(figsize=(6, 6))
         ax = fig.add_subplot(projection='3d')
         render_frame(ax, *decoded[i], centre, radius, at(i))
@@ -319,27 +338,31 @@ def render(meshes: List[bytes], energies: List[bytes], out: Path, times=None,
     anim = FuncAnimation(fig, lambda k: render_frame(ax, *seq[k], centre, radius,
                                                      at(pick[k])), frames=len(seq))
     gif = out / 'cloth.gif'
-    anim.save(gif, writer=PillowWriter(fps=12), dpi=70)
+    anim.save(gif, writer=PillowWriter(fps=12), dpi=70,
+              progress_callback=lambda k, n: say(f'GIF frame {k + 1} of {n}'))
     written.append(gif)
     if shutil.which('ffmpeg'):
         mp4 = out / 'cloth.mp4'
-        anim.save(mp4, writer='ffmpeg', fps=12, dpi=90)
+        anim.save(mp4, writer='ffmpeg', fps=12, dpi=90,
+                  progress_callback=lambda k, n: say(f'MP4 frame {k + 1} of {n}'))
         written.append(mp4)
     plt.close(fig)
     if energies:
+        say(f'energy plot of {len(energies)} messages')
         energy_plot(energies, out / 'energy.png')
         written.append(out / 'energy.png')
     return written
 
 
-def live(seconds: float, node_name: str, wait: float = 60.0, timeout: float = 0.0):
+def live(seconds: float, node_name: str, wait: float = 60.0, timeout: float = 0.0,
+         progress=None):
     """Collect raw mesh and energy messages from the running node: those stamped within
     ``seconds`` of SIMULATION time from the first mesh (the count goes on across a
     ``~/reset``: :class:`.record.SimSpan`); the first mesh past that ends the collection
     and is left out. Wall-clock limits: up to ``wait`` seconds for the first mesh
     (discovery, a node starting), and ``timeout`` seconds (0: none) for the whole
     collection. Returns (meshes, energies, simulation seconds collected); empty lists if
-    no mesh came."""
+    no mesh came. ``progress``: a :class:`.progress.Progress` told how far it got."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from visualization_msgs.msg import MarkerArray
@@ -370,12 +393,19 @@ def live(seconds: float, node_name: str, wait: float = 60.0, timeout: float = 0.
                              raw=True)
     node.create_subscription(DiagnosticArray, f'/{node_name}/energy',
                              keep('energy', energies), 10, raw=True)
-    end = time.monotonic() + wait
+    start = time.monotonic()
+    end = start + wait
     try:
         while not meshes and time.monotonic() < end:
+            if progress is not None:
+                progress.update(f'waiting for /{node_name}/mesh '
+                                f'({time.monotonic() - start:.0f} s of --wait {wait:g})')
             rclpy.spin_once(node, timeout_sec=0.05)
         end = time.monotonic() + timeout if timeout > 0 else None
         while meshes and not done and (end is None or time.monotonic() < end):
+            if progress is not None:
+                progress.update(f'collected {span.elapsed("mesh") * 1e-9:.1f} of '
+                                f'{seconds:g} s of simulation time, {len(meshes)} meshes')
             rclpy.spin_once(node, timeout_sec=0.05)
     finally:
         node.destroy_node()
@@ -415,9 +445,12 @@ def main(argv=None) -> int:
         ap.error(f'--live takes a positive number of simulation seconds, got {a.live:g}')
     if a.wait < 0 or a.timeout < 0:
         ap.error('--wait and --timeout must be >= 0 [s]')
+    from .progress import Progress
+    progress = Progress('render')            # on a terminal only
     obstacles = ()
     if a.live is not None:
-        meshes, energies, got = live(a.live, a.node, a.wait, a.timeout)
+        meshes, energies, got = live(a.live, a.node, a.wait, a.timeout, progress)
+        progress.clear()
         if not meshes:
             print(f'render: error: no mesh from /{a.node}/mesh within {a.wait:g} s (--wait, '
                   'wall clock); is the node running (same ROS_DOMAIN_ID)?', file=sys.stderr)
@@ -433,18 +466,28 @@ def main(argv=None) -> int:
         try:
             meshes, energies, obstacles = read_bag(Path(a.bag), f'/{a.node}/mesh',
                                                    f'/{a.node}/energy',
-                                                   f'/{a.node}/obstacle_markers')
+                                                   f'/{a.node}/obstacle_markers', progress)
+        except SystemExit:                   # a bag without meshes: its one line
+            progress.clear()
+            raise
         except Exception as exc:             # not a rosbag2 directory, a broken file
+            progress.clear()
             print(f'render: error: cannot read {a.bag}: {type(exc).__name__}: {exc}',
                   file=sys.stderr)
             return 2
     else:
         ap.error('give a BAG directory or --live SECONDS')
     try:
-        written = render(meshes, energies, Path(a.output), a.times, a.frames, obstacles)
+        written = render(meshes, energies, Path(a.output), a.times, a.frames, obstacles,
+                         progress)
     except TimesOutsideBag as exc:
+        progress.clear()
         print(f'render: error: {exc}', file=sys.stderr)
         return 2
+    except SystemExit:                       # a mesh message without a triangle list
+        progress.clear()
+        raise
+    progress.done(f'drew {len(written)} files into {a.output}')
     for p in written:
         print(f'render: wrote {p}')
     return 0
