@@ -13,6 +13,9 @@ from PIL import Image
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import get_typestore, Stores
 
+# the record and render executables against a node process (make test, not test-fast)
+pytestmark = pytest.mark.process
+
 RATE = 20.0
 NX = 10
 
@@ -42,11 +45,18 @@ def record(out, *args, **kw):
 
 
 @pytest.fixture(scope='module')
-def bag(node, tmp_path_factory):
+def bag_run(node, tmp_path_factory):
+    """A default recording (zstd-compressed chunks) of 4 s of simulation time, and its
+    completed process (output piped: no progress line in it)."""
     out = tmp_path_factory.mktemp('bags') / 'cloth'
     res = record(out, '--duration', '4')
     assert res.returncode == 0, res.stderr
-    return out
+    return out, res
+
+
+@pytest.fixture(scope='module')
+def bag(bag_run):
+    return bag_run[0]
 
 
 #: [s] the most simulation time one tick of the node can advance: a period of wall time
@@ -132,7 +142,10 @@ def test_recorded_bag_reads_back_with_an_independent_reader(bag):
 def test_bag_crcs_check_out_with_the_mcap_reader(bag):
     # Foxglove's own reader, with CRC validation: every chunk, the data section and the
     # summary carry a CRC (a bag with zeros would pass unchecked), and a flipped byte fails
+    # (inside a zstd chunk, the decoder notices it first; test_bag_compression.py flips
+    # one in a chunk stored uncompressed too)
     import io
+    import zstandard
     from mcap.reader import make_reader
     from mcap.records import DataEnd, Footer
     from mcap.stream_reader import CRCValidationError, StreamReader
@@ -147,7 +160,7 @@ def test_bag_crcs_check_out_with_the_mcap_reader(bag):
     assert [r.summary_crc for r in records if isinstance(r, Footer)][0] != 0
     bad = bytearray(data)
     bad[len(data) // 3] ^= 0xFF
-    with pytest.raises(CRCValidationError):
+    with pytest.raises((CRCValidationError, zstandard.ZstdError)):
         list(make_reader(io.BytesIO(bytes(bad)), validate_crcs=True).iter_messages())
 
 
@@ -173,6 +186,41 @@ def test_every_message_decodes_with_mcap_ros2_support(bag):
     assert_logged_on_the_sim_clock(log_t, t)
     assert count == expected > 0
     assert set(kinds) == {'/cloth_node/mesh', '/cloth_node/energy', '/diagnostics', '/clock'}
+
+
+def test_the_recorder_compresses_with_zstd_and_says_how_much(bag_run):
+    """By default every chunk is zstd-compressed: three independent readers (mcap with
+    every CRC checked, rosbags, the recovery's own scan) read the same messages, bit for
+    bit; the last line gives the size, per second of simulation time, and the ratio; a
+    pipe gets no progress line."""
+    import io
+    import re
+    from mcap.reader import make_reader
+    from cosserat_ros.tools.record import scan_mcap
+    bag, res = bag_run
+    data = (bag / 'cloth.mcap').read_bytes()
+    reader = make_reader(io.BytesIO(data), validate_crcs=True)
+    got = [(c.topic, m.log_time, bytes(m.data))
+           for _, c, m in reader.iter_messages(log_time_order=False)]
+    chunks = reader.get_summary().chunk_indexes
+    assert chunks and {c.compression for c in chunks} == {'zstd'}
+    assert all(c.compressed_size < c.uncompressed_size for c in chunks)
+    with AnyReader([bag]) as r:
+        assert [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()] == got
+    assert [(topic, t, raw) for topic, _, _, t, raw in scan_mcap(bag / 'cloth.mcap')] == got
+    assert len(got) > 100
+    m = re.search(r'^record: wrote (\d+) messages to \S+ \(([\d.]+) MB, ([\d.]+) MB per second '
+                  r'of simulation time, zstd: ([\d.]+) times smaller than uncompressed\); '
+                  r'([\d.]+) s of simulation time; ', res.stdout, re.M)
+    assert m, res.stdout
+    n, mb, rate, ratio, sim = (float(g) for g in m.groups())
+    assert n == len(got) and mb == round(len(data) / 1e6, 1)
+    assert rate == pytest.approx(mb / sim, abs=0.01 + 0.05 * mb / sim)
+    stored = sum(c.compressed_size for c in chunks)
+    plain = sum(c.uncompressed_size for c in chunks)
+    assert ratio > 2 and ratio == pytest.approx((len(data) - stored + plain) / len(data),
+                                                abs=0.06)
+    assert '\r' not in res.stdout + res.stderr and ' MB\n' not in res.stderr
 
 
 def test_a_camera_is_recorded_when_asked(node, tmp_path):
@@ -485,7 +533,7 @@ class Pauser:
         rclpy.shutdown(context=self.ctx)
 
 
-def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
+def test_sigint_closes_the_bag(node, tmp_path):
     out = tmp_path / 'interrupted'
     p = recording(out)
     p.send_signal(signal.SIGINT)
@@ -493,26 +541,56 @@ def test_sigint_closes_and_a_crash_is_recoverable(node, tmp_path):
     assert p.returncode == 0 and 'Traceback' not in err
     with AnyReader([out]) as reader:
         assert reader.message_count > 0
+
+
+def complete_chunks(mcap):
+    """The compressions of the complete chunk records of a (growing) MCAP file."""
+    import struct
+    data = mcap.read_bytes() if mcap.exists() else b''
+    found, off = [], 8
+    while off + 9 <= len(data):
+        op, n = struct.unpack_from('<BQ', data, off)
+        if off + 9 + n > len(data):
+            break
+        if op == 0x06:
+            k = struct.unpack_from('<I', data, off + 9 + 28)[0]
+            found.append(data[off + 9 + 32:off + 9 + 32 + k].decode())
+        off += 9 + n
+    return found
+
+
+@pytest.mark.parametrize('compress', ['zstd', 'none'])
+def test_a_killed_recording_is_recoverable(node, tmp_path, compress):
+    """SIGKILL once a few 1 MiB chunks are on disk (the next one maybe half written):
+    ``record --recover`` rebuilds a valid bag of the complete chunks, compressed as they
+    were."""
     crashed = tmp_path / 'crashed'
-    p = subprocess.Popen([exe('record'), '-o', str(crashed), '--wait', '150'],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    p = subprocess.Popen([exe('record'), '-o', str(crashed), '--wait', '150', '--compress',
+                          compress], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     mcap = crashed / 'crashed.mcap'
-    end = time.monotonic() + 60
-    while time.monotonic() < end and (not mcap.exists() or mcap.stat().st_size < 3 << 20):
-        time.sleep(0.2)                                       # a few 1 MiB chunks on disk
-    p.kill()
-    p.wait()
+    end = time.monotonic() + 240                                  # a safety net only
+    try:
+        while time.monotonic() < end and len(complete_chunks(mcap)) < 3:
+            time.sleep(0.2)                                   # a few 1 MiB chunks on disk
+    finally:
+        p.kill()
+        p.wait()
+    written = complete_chunks(mcap)
+    assert len(written) >= 3
+    assert set(written) == ({'zstd'} if compress == 'zstd' else {''}), written
     assert not (crashed / 'metadata.yaml').exists()
     res = subprocess.run([exe('record'), '--recover', str(crashed)], capture_output=True,
-                         text=True, timeout=60)
+                         text=True, timeout=120)
     assert res.returncode == 0, res.stderr
+    assert '\r' not in res.stdout + res.stderr                 # piped: no progress line
     with AnyReader([crashed]) as reader:
         msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
     assert len(msgs) >= 3
     from mcap.reader import make_reader
     with open(crashed / 'crashed.mcap', 'rb') as fh:                # the rebuilt file
-        assert sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages()) == \
-            len(msgs)
+        reader = make_reader(fh, validate_crcs=True)
+        assert sum(1 for _ in reader.iter_messages()) == len(msgs)
+        assert {c.compression for c in reader.get_summary().chunk_indexes} == set(written)
     # each topic keeps the QoS it was recorded with: /clock latched, depth 1 (the
     # recovery had written every topic as reliable, volatile, depth 5)
     import yaml
@@ -581,6 +659,9 @@ def test_render_a_recorded_bag(bag, tmp_path):
     assert gif.n_frames >= 2
     energy = np.asarray(Image.open(out / 'energy.png').convert('RGB'), dtype=float)
     assert energy.std() > 10
+    # a pipe gets no progress line: the stdout lines are the files, stderr is empty
+    assert res.stderr == '' and '\r' not in res.stdout, res.stderr
+    assert all(ln.startswith('render: wrote ') for ln in res.stdout.splitlines())
     res = subprocess.run([exe('render'), str(out / 'nope'), '-o', str(out)],
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and 'not a bag directory' in res.stderr
@@ -832,3 +913,81 @@ def test_a_reset_while_recording_keeps_the_log_times_going_forward(node, tmp_pat
                 clock.append(msg.clock.sec * 10 ** 9 + msg.clock.nanosec)
     assert np.all(np.diff(log_times) >= 0)                   # in the file's own order
     assert np.any(np.diff(clock) < -5e8), clock              # the reset is in the bag
+
+
+def run_on_a_terminal(cmd, timeout):
+    """Run ``cmd`` with its stderr on a pseudo-terminal (as in a shell) and its stdout on
+    a pipe; returns (exit code, stdout, what the terminal received). The terminal does
+    not turn newlines into CR LF (``onlcr`` off), so that a carriage return in what it
+    received is one the program wrote."""
+    import pty
+    import select
+    import termios
+    master, slave = pty.openpty()
+    attrs = termios.tcgetattr(slave)
+    attrs[1] &= ~termios.ONLCR
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=slave,
+                         stdin=subprocess.DEVNULL)
+    os.close(slave)
+    out_fd = p.stdout.fileno()
+    got = {out_fd: b'', master: b''}
+    open_fds = set(got)
+    end = time.monotonic() + timeout                              # a safety net only
+    try:
+        while open_fds:
+            assert time.monotonic() < end, got[master][-500:]
+            for fd in select.select(list(open_fds), [], [], 1.0)[0]:
+                try:
+                    data = os.read(fd, 65536)
+                except OSError:                 # EIO: the last writer closed the terminal
+                    data = b''
+                if data:
+                    got[fd] += data
+                else:
+                    open_fds.discard(fd)
+        p.wait(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        os.close(master)
+        p.stdout.close()
+    return (p.returncode, got[out_fd].decode(errors='replace'),
+            got[master].decode(errors='replace'))
+
+
+def test_progress_lines_on_a_terminal(node, bag, tmp_path):
+    """On a terminal, record and render show one progress line each on stderr, rewritten
+    in place (a carriage return before each update), ended with a newline, with log lines
+    starting on lines of their own; their stdout (a pipe) has none of it."""
+    import re
+    out = tmp_path / 'tty_bag'
+    code, stdout, tty = run_on_a_terminal(
+        [exe('record'), '-o', str(out), '--wait', '150', '--duration', '2'], timeout=240)
+    assert code == 0, tty
+    updates = re.findall(r'\rrecord: ([\d.]+) of 2 s of simulation time, (\d+) messages, '
+                         r'([\d.]+) MB *(?=\r|\n)', tty)
+    assert updates, tty
+    assert updates[-1][0] != '0.0' and int(updates[-1][1]) > 0
+    seconds = [float(u[0]) for u in updates]
+    assert seconds == sorted(seconds) and seconds[-1] <= 2.0
+    # the progress line ends with a newline before the recorder's own lines
+    last = tty.rindex('\rrecord: ')
+    assert '\n' in tty[last:] and '\r' not in tty[last + 1:], tty[last:]
+    assert not re.search(r'[^\r\n]\[(INFO|WARN)\]', tty), tty       # log lines start a line
+    assert stdout.startswith('record: wrote ') and '\r' not in stdout, stdout
+    with AnyReader([out]) as reader:
+        assert reader.message_count > 0
+    pictures = tmp_path / 'tty_pictures'
+    code, stdout, tty = run_on_a_terminal(
+        [exe('render'), str(bag), '-o', str(pictures), '--frames', '6'], timeout=300)
+    assert code == 0, tty
+    # the first update and the last are always drawn; between them at most four a
+    # second, so of the six GIF frames (more than a quarter of a second of drawing) one
+    # at least
+    assert tty.startswith('\rrender: reading cloth: message 1 of '), tty[:200]
+    assert re.search(r'\rrender: GIF frame [1-6] of 6 *\r', tty), tty
+    assert re.search(r'\rrender: drew \d+ files into \S+ *\n$', tty), tty[-300:]
+    assert '\r' not in stdout and stdout.count('render: wrote ') >= 5, stdout
+
