@@ -17,7 +17,9 @@ from cosserat_ros.ros.scene import build_simulator, check_parameters, read_param
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-BATCH = ROOT / '.venv' / 'lib' / 'cosserat_ros' / 'batch'
+#: the venv the tests run in (make's VENV, .venv by default), where make installed the package
+PREFIX = Path(sys.prefix)
+BATCH = PREFIX / 'lib' / 'cosserat_ros' / 'batch'
 
 
 def small_spec(**over):
@@ -114,6 +116,7 @@ def test_a_bad_spec_is_refused_with_the_key_and_why(change, words):
     {'randomize': {'material.preset': {'choice': ['chainmail']}}},
     {'policy': {'script': 'no_such_module_here:go'}},
 ])
+@pytest.mark.process
 def test_the_command_refuses_a_bad_spec_with_one_line_exit_2_and_leaves_nothing(tmp_path,
                                                                                 change):
     spec = tmp_path / 'spec.yaml'
@@ -192,6 +195,7 @@ def test_params_yaml_reproduces_the_scene(done):
     assert list(table['position']) == pytest.approx(ep.params['obstacles.table.center'])
 
 
+@pytest.mark.process
 def test_the_node_accepts_an_episode_params_file(done, tmp_path):
     """``cloth_node --params-file params.yaml`` starts (as ``ros2 run`` would) with the
     episode's material and obstacles."""
@@ -199,7 +203,7 @@ def test_the_node_accepts_an_episode_params_file(done, tmp_path):
     from rcl_interfaces.srv import GetParameters
     out, eps, _ = done
     ep = eps[1]
-    node_exe = ROOT / '.venv' / 'lib' / 'cosserat_ros' / 'cloth_node'
+    node_exe = PREFIX / 'lib' / 'cosserat_ros' / 'cloth_node'
     proc = subprocess.Popen([str(node_exe), '--ros-args', '--params-file',
                              str(out / 'episodes' / ep.id / 'params.yaml'),
                              '-p', 'status_period:=0.0'],
@@ -398,7 +402,7 @@ def test_a_loaded_spec_loads_again_to_itself():
 def test_the_shipped_example_specs_load_and_their_first_episode_runs(name, tmp_path):
     """The examples of config/batch/, as installed (their ``base`` resolves beside
     them), each with its first episode cut to 0.2 s."""
-    share = ROOT / '.venv' / 'share' / 'cosserat_ros' / 'config' / 'batch'
+    share = PREFIX / 'share' / 'cosserat_ros' / 'config' / 'batch'
     spec = load_spec(share / f'{name}.yaml')
     assert spec['episodes'] >= 50
     spec['duration'] = 0.2

@@ -22,6 +22,9 @@ import yaml
 from cosserat_ros.batch import load_spec, plan, read_manifest, run_batch, run_episode
 from cosserat_ros.batch.spec import SpecError
 
+# real Ray instances and clusters, and the batch command (make test, not test-fast)
+pytestmark = [pytest.mark.ray, pytest.mark.process]
+
 ROOT = Path(__file__).resolve().parent.parent
 BATCH = ROOT / '.venv' / 'lib' / 'cosserat_ros' / 'batch'
 

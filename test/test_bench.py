@@ -8,6 +8,9 @@ import pytest
 
 from cosserat_ros.tools import bench, peer_mujoco as peer
 
+# the bench tier: MuJoCo and the benchmark's parts (make test, not test-fast)
+pytestmark = pytest.mark.bench
+
 
 def test_our_row_is_measured():
     r = bench.bench(8, batch_s=0.02, repeats=3)

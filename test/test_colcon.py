@@ -8,6 +8,9 @@ import sys
 
 import pytest
 
+# the colcon tier: a workspace built and tested with colcon (make test, not test-fast)
+pytestmark = pytest.mark.colcon
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SOURCES = ('cosserat_ros', 'config', 'launch', 'rviz', 'resource', 'test', 'setup.py',
            'setup.cfg', 'package.xml', 'README.md')

@@ -78,6 +78,7 @@ print(json.dumps({k.py_func.__qualname__: sorted(map(str, k.signatures)) for k i
 
 
 @pytest.mark.parametrize('plan', ['two-pass', 'tiled'])
+@pytest.mark.process
 def test_warmup_compiles_the_signatures_the_node_then_asks_for(tmp_path, plan):
     # cosserat_ros.core.warmup, the node's second process on a cold start, compiles what
     # the node needs besides its step (the energy kernels, the contact pass, and the
@@ -115,6 +116,7 @@ def _copy_cache_but_the_energy_kernel(dst):
                 shutil.copy2(os.path.join(root, n), os.path.join(dst, sub, n))
 
 
+@pytest.mark.process
 def test_warmup_process_starts_once_and_fills_the_cache(tmp_path):
     # on a cold cache (here: all but the energy kernel, which says whether it is cold)
     # the first start runs the warm-up, a second start while it runs starts no other,
@@ -149,6 +151,7 @@ def _catches_sigterm(pid):
     return bool(caught & (1 << (15 - 1)))
 
 
+@pytest.mark.process
 def test_warmup_process_ends_with_the_process_that_started_it(tmp_path):
     # a node killed during its cold start (here SIGKILL: no handler of its own runs)
     # leaves no compiler behind on a core, and no lock that would stop the next start's
@@ -245,6 +248,7 @@ for k in (kernel(refcount=False)(closest), nb.njit(error_model='numpy')(closest)
 """
 
 
+@pytest.mark.process
 def test_refcount_false_compiles_without_reference_counting(tmp_path):
     # kernel(refcount=False) maps to numba's private _nrt=False (numba is pinned): a loop
     # that passes rows of an array to another kernel, compiled into an empty cache, has

@@ -5,7 +5,12 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 from test_sim_time import _node, _stop
+
+# the examples run against a node process (make test, not test-fast)
+pytestmark = pytest.mark.process
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DOC = os.path.join(os.path.dirname(HERE), 'doc')

@@ -5,6 +5,8 @@ import os
 import re
 import sys
 
+import pytest
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, os.path.join(ROOT, 'doc', '_ext'))
@@ -61,6 +63,7 @@ def _python_blocks(text):
     return re.findall(r'```python\n(.*?)```', text, flags=re.S)
 
 
+@pytest.mark.process
 def test_the_readme_library_example_runs_as_written():
     """The README's library example, extracted and run in a process of its own: it prints
     the energy report (a dict with a finite total, the cloth having fallen: gravity's

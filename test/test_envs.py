@@ -184,6 +184,7 @@ def test_a_divergence_ends_the_episode_as_truncated_with_the_reason():
 
 
 # ---------------------------------------------------------------- vectors
+@pytest.mark.process
 def test_an_async_vector_of_two_gives_each_env_s_own_bits():
     from cosserat_ros.envs import make_vector_env
     opts = dict(action_mode='handle_delta', **SMALL)

@@ -335,6 +335,7 @@ print(int(out[:, 0].sum()), int(out[0, 1]), int(out[1, 1]), int(sync[0]), _SYS_F
 """
 
 
+@pytest.mark.process
 def test_the_barrier_sleeps_and_loses_no_wake_up():
     # 20000 rounds of two threads, the second late by a short loop each round, the waiter
     # sent to sleep at once (no spin): every round, each thread leaves only after both

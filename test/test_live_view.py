@@ -108,6 +108,7 @@ def node(tmp_path):
     assert proc.returncode == 0 and 'Traceback' not in err, err
 
 
+@pytest.mark.process
 def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     port, proc = node
     c = Client(port)
@@ -182,6 +183,7 @@ def test_an_independent_client_sees_the_cloth_and_resets_it(node):
     assert json.dumps(layout['layout']).count('CallService!') == 3     # all three shown
 
 
+@pytest.mark.process
 def test_the_cameras_images_and_calibration_are_shown(node):
     port, proc = node
     c = Client(port)

@@ -45,6 +45,7 @@ print(sizes)
 '''
 
 
+@pytest.mark.process
 def test_the_module_loads_no_node_and_serialises_without_init():
     # the interpreter finds cosserat_ros where this one did (the installed copy, or the
     # working tree if it comes first on sys.path)

@@ -141,6 +141,7 @@ def per_sim_second(stamps):
     return (len(stamps) - 1) / (stamps[-1] - stamps[0])
 
 
+@pytest.mark.process
 def test_node_process_end_to_end(tmp_path, client):
     node, ex = client
     params = tmp_path / 'cloth.yaml'
@@ -226,6 +227,7 @@ def test_node_process_end_to_end(tmp_path, client):
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.process
 def test_signals_stop_a_busy_node_cleanly(tmp_path, client, sig):
     # a 40x40 cloth spends most of each tick stepping and publishing, so the signal lands
     # inside a callback: shutdown must still be clean
@@ -253,6 +255,7 @@ def test_signals_stop_a_busy_node_cleanly(tmp_path, client, sig):
     (PARAMS.replace('cloth_node:', 'clothnode:'), 'no section for node /cloth_node'),
     (PARAMS.replace('dt: 2.0e-4', 'dt: 1.0e-9'), 'below'),
 ])
+@pytest.mark.process
 def test_bad_params_file_fails_with_one_line(tmp_path, text, match):
     params = tmp_path / 'bad.yaml'
     params.write_text(text)
@@ -317,6 +320,7 @@ class HostilePeer:
         self.log.close()
 
 
+@pytest.mark.process
 def test_a_hostile_peer_cannot_stall_the_node_through_obstacles_and_handles(tmp_path,
                                                                             client):
     """Another process floods ~/obstacles with oversized and bad marker arrays and
@@ -362,6 +366,7 @@ def _mesh_gaps(stamps):
     return np.diff(stamps).max() if len(stamps) > 1 else float('inf')
 
 
+@pytest.mark.process
 def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_path,
                                                                            client):
     """Another process floods ~/point_forces with 10,000-row messages (refused by their
@@ -422,6 +427,7 @@ def test_a_hostile_peer_cannot_stall_the_node_through_forces_and_parameters(tmp_
     assert 'Traceback' not in err + out
 
 
+@pytest.mark.process
 def test_security_that_cannot_be_provided_is_a_one_line_error(tmp_path):
     params = tmp_path / 'p.yaml'
     params.write_text(PARAMS)
@@ -438,6 +444,7 @@ def test_security_that_cannot_be_provided_is_a_one_line_error(tmp_path):
         assert len(errors) == 1 and 'ROS security requested' in errors[0], err
 
 
+@pytest.mark.process
 def test_ctrl_c_while_starting_ends_without_a_traceback(tmp_path):
     # half a second in, the executable is still importing numpy, numba and rclpy
     params = tmp_path / 'p.yaml'
@@ -450,6 +457,7 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(tmp_path):
     assert proc.returncode in (0, 130), err
 
 
+@pytest.mark.process
 def test_ctrl_c_inside_a_c_librarys_callback_ends_without_a_traceback(tmp_path):
     """The interrupt of the test above, landing where it made CI fail once: inside
     llvmlite's callback into Python while numba loads a kernel, where it cannot propagate

@@ -195,6 +195,7 @@ def _stop(proc):
 
 
 @pytest.mark.parametrize('factor', [1.0, 0.2])
+@pytest.mark.process
 def test_fold_demo_folds_the_cloth_at_any_real_time_factor(factor, tmp_path):
     """The shipped demo end to end (config/fold.yaml in one process, fold_demo in
     another: grasp, a stamped pose stream, release, its own check of the fold from
@@ -251,6 +252,7 @@ def _flag_gusts(factor, duration, log):
     return demo.returncode, out + err, rows
 
 
+@pytest.mark.process
 def test_flag_demo_flies_the_same_gusts_in_sim_time_at_any_real_time_factor(tmp_path):
     """The wind messages flag_demo sends (recorded by a third process) have the same
     stamps, relative to the first, and values at full speed and at a fifth of real time:
