@@ -5,6 +5,7 @@ import hashlib
 import json
 from pathlib import Path
 import subprocess
+import time
 import sys
 
 import numpy as np
@@ -212,9 +213,15 @@ def test_the_node_accepts_an_episode_params_file(done, tmp_path):
     node = rclpy.create_node('batch_params_check')
     try:
         cli = node.create_client(GetParameters, '/cloth_node/get_parameters')
-        # a safety net only: the first node of a session compiles on a cold cache, which
-        # beside busy processes took more than 120 s
-        assert cli.wait_for_service(timeout_sec=600), proc.stdout.read() if proc.poll() else ''
+        # rclpy's parameter services exist from the node's construction, before it has
+        # loaded its kernels and spins; its topics come after (the node's start-up): wait
+        # for them. A safety net only: the first node of a session compiles on a cold
+        # cache, which beside busy processes took more than 120 s
+        deadline = time.monotonic() + 600
+        while node.count_publishers('/cloth_node/mesh') == 0 and proc.poll() is None:
+            assert time.monotonic() < deadline, 'the node did not start within 600 s'
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert cli.wait_for_service(timeout_sec=60), proc.stdout.read() if proc.poll() else ''
         fut = cli.call_async(GetParameters.Request(
             names=['material.damping', 'obstacles.table.center']))
         rclpy.spin_until_future_complete(node, fut, timeout_sec=30)
