@@ -175,7 +175,8 @@ class SimSpan:
         return bool(self._run)
 
 
-def scan_mcap(path: Path, compressions: Optional[set] = None):
+def scan_mcap(path: Path, compressions: Optional[set] = None,
+              topics: Optional[list] = None):
     """Messages of an MCAP file up to its last complete record, tolerating a torn tail
     (and stopping at a corrupt record as at a torn one).
 
@@ -187,7 +188,9 @@ def scan_mcap(path: Path, compressions: Optional[set] = None):
     ``uncompressed_size`` and match its ``uncompressed_crc`` (when not 0); the first that
     does not ends the scan, as a torn record does. ``compressions``: a set that receives
     the compression of every complete chunk ('' for none) before the first message is
-    yielded. A chunk compressed otherwise (lz4, from another writer) is refused with
+    yielded; ``topics``: a list that receives (topic, msgtype, QoS) of every channel
+    recorded outside chunks (as this recorder writes them), in file order, also before the
+    first message. A chunk compressed otherwise (lz4, from another writer) is refused with
     SystemExit."""
     import struct
     import zlib
@@ -288,10 +291,14 @@ def scan_mcap(path: Path, compressions: Optional[set] = None):
                 if msg:
                     yield msg
 
-    if compressions is not None:      # the chunks' headers first (nothing decompressed)
+    if compressions is not None or topics is not None:   # headers first, none decompressed
         try:
             for op, buf, o, end in records(data, 8, len(data)):
-                if op == 0x06:
+                if op in (0x03, 0x04) and topics is not None:
+                    handle(op, buf, o, end)
+                    if op == 0x04:
+                        topics.append(channels[struct.unpack_from('<H', buf, o)[0]])
+                elif op == 0x06 and compressions is not None:
                     o += 8 + 8 + 8 + 4
                     comp, o = string(buf, o)
                     n, o = u64(buf, o)
@@ -327,9 +334,13 @@ def recover(path: Path) -> int:
     if tmp.exists():
         shutil.rmtree(tmp)
     compressions: set = set()
-    messages = scan_mcap(mcap, compressions)
-    first = next(messages, None)             # the chunks' compressions are known by now
+    topics: list = []
+    messages = scan_mcap(mcap, compressions, topics)
+    first = next(messages, None)          # the chunks' compressions and topics are known now
     bag = BagWriter(tmp, compression='zstd' if 'zstd' in compressions else '')
+    for topic, msgtype, qos in topics:    # all first: adding one later cuts a chunk short
+        if topic not in bag.topics:
+            bag.add(topic, msgtype, qos)
     progress = Progress('record')
     n = 0
     for topic, msgtype, qos, stamp, data in itertools.chain([first] if first else [],
