@@ -18,7 +18,13 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.*')),
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
-    install_requires=['setuptools'],
+    # what the installed code imports, unversioned so that a ROS install's system packages
+    # satisfy them (requirements.txt pins the versions `make` installs and the tests ran;
+    # package.xml names the same libraries for rosdep). rclpy and the message packages are
+    # not listed: a ROS install provides them (from PyPI: ros-jazzy-rclpy[fastrtps] and
+    # ros-jazzy-common-interfaces, requirements.txt).
+    install_requires=['setuptools', 'numpy', 'numba', 'llvmlite', 'scipy', 'trimesh',
+                      'rosbags', 'matplotlib', 'PyYAML'],
     # the peer engine of the benchmark (requirements-bench.txt pins it), the live view
     # (foxglove.port; requirements-viz.txt), the batch engine (requirements-batch.txt) and
     # the Gymnasium tasks (requirements-envs.txt)

@@ -126,3 +126,41 @@ def test_every_package_the_code_imports_or_launches_is_a_run_dependency():
     for name in ('cloth.launch.py', 'cloth.launch.xml'):
         if 'rviz2' in open(os.path.join(SHARE, 'launch', name)).read():
             assert 'rviz2' in deps, f'launch/{name} starts rviz2'
+
+
+#: import name -> distribution name, where they differ
+DISTRIBUTIONS = {'yaml': 'pyyaml', 'mpl_toolkits': 'matplotlib', 'backports': 'rosbags',
+                 'foxglove': 'foxglove-sdk'}
+
+
+def test_the_installed_distribution_requires_every_library_it_imports():
+    """pip and colcon read the dependencies from setup.py: every third-party library the
+    installed code imports (ROS's packages aside, which a ROS install provides) is in
+    install_requires, or in the extra of the optional part that imports it."""
+    import importlib.metadata
+    import re
+    import sys
+    requires = importlib.metadata.requires('cosserat_ros')
+    runtime, extras = set(), set()
+    for r in requires:
+        name = re.match(r'[A-Za-z0-9_.-]+', r).group(0).lower()
+        (extras if 'extra ==' in r else runtime).add(name)
+    code = os.path.dirname(os.path.abspath(__import__('cosserat_ros').__file__))
+    imported = set()
+    for dirpath, _, files in os.walk(code):
+        for f in files:
+            if f.endswith('.py'):
+                for n in ast.walk(ast.parse(open(os.path.join(dirpath, f)).read())):
+                    if isinstance(n, ast.Import):
+                        imported |= {a.name.split('.')[0] for a in n.names}
+                    elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+                        imported.add(n.module.split('.')[0])
+    ros = {m for m in imported if m in ('rclpy', 'rcl_interfaces', 'ament_index_python',
+                                         'builtin_interfaces', 'rosgraph_msgs')
+           or m.endswith(('_msgs', '_srvs'))}
+    third = imported - set(sys.stdlib_module_names) - NEWER_STDLIB - {'cosserat_ros'} - ros
+    assert {'numpy', 'numba', 'ray'} <= third                          # the walk works
+    dists = {DISTRIBUTIONS.get(m, m).lower() for m in third}
+    assert not dists - runtime - extras, f'imported, not required: {dists - runtime - extras}'
+    optional = {DISTRIBUTIONS.get(m, m).lower() for m in EXTRAS - {'llvmlite'}} & dists
+    assert not optional & runtime, f'an optional library is a run dependency: {optional & runtime}'
