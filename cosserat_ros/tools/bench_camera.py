@@ -123,7 +123,7 @@ def part_camera(watch_s: float = 6.0) -> None:
 
 def _node_with_camera(watch_s: float) -> None:
     import yaml
-    from .bench import run_node
+    from .bench_node import run_node
     os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with open(_share('cloth.yaml')) as fh:
