@@ -48,10 +48,7 @@ Newton's method:
   Where the forces are near linear over the step (a sheet settling) the model is good,
   eta falls and Newton converges superlinearly; where they are not (a fall from flat, a
   swing through compression) it stays loose and no CG iterations are spent on a model
-  that misses. Against the earlier ``min(0.5, sqrt(|r| / |r_0|))``: issue 6 at 160 x
-  160, 120 steps of the fall and settling, 6.59 -> 5.89 CG and 2.14 -> 1.93 Newton
-  iterations a step; the stiff sheet 4.97 -> 4.24; the converged denim swing at 40 x 40
-  98 -> 86 ms a step under the profiler, 120 steps (docs/performance.md);
+  that misses (against ``min(0.5, sqrt(|r| / |r_0|))``: docs/performance.md);
 * a backtracking (Armijo) line search on Phi, so that every iteration lowers the
   potential (no overshoot, no divergence from a too-long Newton step at large dt); a
   full step whose change of Phi is below Phi's round-off (1e-11 of it, near the
@@ -64,17 +61,14 @@ Newton's method:
   right to that fraction of the step's own change whatever the forces' size, or, where
   that change is smaller than the load's in a step (a cloth at or near rest), to that
   fraction of ``F_i dt / m_i`` (``g dt`` for a vertex that only weighs), a static error
-  of that fraction of the load's deflection. Relative to R_0 alone a sheet settling
-  under gravity kept taking three Newton iterations a step to cut an imbalance already
-  below 1e-3 of its weight a thousandfold again (issue 6 at 80 x 80, its first 80
-  steps: 8.9 -> 5.4 CG iterations a step; its positions within 1.7e-4 of the sag of a
-  solve to 1e-9 at every step, 3e-6 before; docs/performance.md). Or
+  of that fraction of the load's deflection (relative to R_0 alone, a settling sheet kept
+  cutting an imbalance already below 1e-3 of its weight: docs/performance.md). Or
   after ``iterations`` Newton iterations; a residual below 1e-8 of the largest force on
   a vertex (elastic, applied or weight) is round-off: a cloth at rest takes none. The
   start is ``x + dt v``, where the vertices coast to (R_0 is the residual there), or,
   without obstacles, that plus ``dt^2`` times the last step's acceleration where Phi is
-  lower: a steady fall or swing then starts at or near its solution (issue 6 at N = 40,
-  steps 20-80: 11.3 CG iterations a step -> 9.8).
+  lower: a steady fall or swing then starts at or near its solution
+  (docs/performance.md).
 
 What backward Euler does to energy: it dissipates, strongly for the modes of period
 below ~dt (the stiff membrane modes) and weakly for slow ones (a mode of frequency omega
@@ -134,7 +128,7 @@ from .implicit_contact import ADDS, FREE, ROUNDS, STICK, ObstacleConstraints, pu
 from .ldl import LDLFactor, solve_pair, symmetric_lu
 from ..update import contact_list
 from .vectors import (cg_update, direction, dot, fd_product, from_frames, inertia_energy,
-                      inertia_residual, residual_measure, to_frames)
+                      inertia_residual, residual_measure, to_frames, vertex_frames)
 
 __all__ = ['ImplicitSolver', 'SolveReport']
 
@@ -161,30 +155,6 @@ PLATE_RATIO = 10.0
 #: tangential and a normal part (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet
 #: at beta 14 / 20 / 29 took 1.45x / 1.06x / 0.64x the time a step whole)
 SPLIT_RATIO = 25.0
-
-
-def vertex_frames(x: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """(n, 3, 3): each vertex's frame at positions x, its columns two tangent axes and the
-    unit normal, the normal the area-weighted mean of its faces' (+z where they cancel to
-    round-off or it has none; ``ImplicitSolver._preconditioner``)."""
-    n = len(x)
-    fn = np.cross(x[corners[:, 1]] - x[corners[:, 0]], x[corners[:, 2]] - x[corners[:, 0]])
-    at = corners.ravel()
-    nrm = np.stack([np.bincount(at, weights=np.repeat(fn[:, k], 3), minlength=n)
-                    for k in range(3)], axis=1)
-    size = np.linalg.norm(nrm, axis=1)
-    # where the faces' normals (nearly) cancel, as on the crease of a cloth folded flat,
-    # their sum is round-off: +z then, as for a vertex without faces
-    total = np.bincount(at, weights=np.repeat(np.linalg.norm(fn, axis=1), 3), minlength=n)
-    flat = ~(size > 1e-9 * total) | ~(size > 1e-300)
-    nrm[flat] = (0.0, 0.0, 1.0)
-    size[flat] = 1.0
-    nrm /= size[:, None]
-    # the first tangent: the coordinate axis least along the normal, made normal to it
-    e = np.eye(3)[np.argmin(np.abs(nrm), axis=1)]
-    t1 = e - np.sum(e * nrm, axis=1)[:, None] * nrm
-    t1 /= np.linalg.norm(t1, axis=1)[:, None]
-    return np.stack([t1, np.cross(nrm, t1), nrm], axis=2)
 
 
 def _norm(a: np.ndarray) -> float:
@@ -385,7 +355,7 @@ class ImplicitSolver:
           operator ``6 xi K`` (``bending.plate_matrix``) on each coordinate;
         * above: the plate operator on the displacement normal to the sheet only, and P
           taken in each vertex's frame (two tangent axes and the normal,
-          :func:`vertex_frames`) and split there into a tangential 2n x 2n part and a
+          :func:`.vectors.vertex_frames`) and split there into a tangential 2n x 2n part and a
           normal n x n part, factored apart: the blocks between a tangential and a
           normal coordinate are left out.
 
@@ -394,17 +364,16 @@ class ImplicitSolver:
         0.9 / 14 / 230 on issue 6's sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
         iterations (~18 per Newton iteration at N = 80). Why the split: on each of the
         three coordinates the operator's two-ring stencil meets the membrane's 3 x 3
-        blocks and the factor fills in (41.5 M entries at 160 x 160, a 38 ms solve, 1.6 s
-        to factor); split, the plate meets one coordinate a vertex and the membrane's
-        one-ring stencil two (10.7 M entries, 13 ms, 0.3 s). What it leaves out is
+        blocks and the factor fills in; split, the plate meets one coordinate a vertex
+        and the membrane's one-ring stencil two (at 160 x 160 a quarter of the entries
+        and a third of the solve's time: docs/performance.md). What it leaves out is
         small where the bending dominates the inertia at the mesh's scale: it keeps the
         surface smooth there, so that neighbouring frames turn little, and the
         membrane's in-plane stiffness reaches a normal coordinate only through that
         turn (flat and without the coupling's blocks, phi = 0, the two parts are exactly
         P's; the coupling's blocks join the tangential and the normal coordinates of a
-        vertex, and their link is left out too). Nearer the ratio it is not small: issue
-        6's sheet at beta 14 took 1.45x the time a step split (2.2x the CG iterations),
-        at beta 20 1.06x, at beta 29 0.64x (docs/performance.md). And why not the
+        vertex, and their link is left out too); nearer the ratio it is not small
+        (SPLIT_RATIO). And why not the
         operator below PLATE_RATIO: its fill makes each factorization ~2.5x dearer,
         which a cloth that swings and so refactors P often (11 oz denim: beta 0.4 at
         N = 40) does not win back.

@@ -19,7 +19,8 @@ import numpy as np
 from ..compiled import kernel
 
 __all__ = ['dot', 'fd_product', 'cg_update', 'direction', 'inertia_residual',
-           'inertia_energy', 'residual_measure', 'to_frames', 'from_frames', 'warm']
+           'inertia_energy', 'residual_measure', 'to_frames', 'from_frames', 'vertex_frames',
+           'warm']
 
 
 @kernel()
@@ -172,3 +173,27 @@ def warm() -> None:
     zt, zn = np.zeros(4, np.float32), np.zeros(2, np.float32)
     to_frames(frame, b, zt, zn)
     from_frames(frame, zt, zn, np.zeros(2, np.bool_), a)
+
+
+def vertex_frames(x: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(n, 3, 3): each vertex's frame at positions x, its columns two tangent axes and the
+    unit normal, the normal the area-weighted mean of its faces' (+z where they cancel to
+    round-off or it has none; ``.implicit.ImplicitSolver._preconditioner``)."""
+    n = len(x)
+    fn = np.cross(x[corners[:, 1]] - x[corners[:, 0]], x[corners[:, 2]] - x[corners[:, 0]])
+    at = corners.ravel()
+    nrm = np.stack([np.bincount(at, weights=np.repeat(fn[:, k], 3), minlength=n)
+                    for k in range(3)], axis=1)
+    size = np.linalg.norm(nrm, axis=1)
+    # where the faces' normals (nearly) cancel, as on the crease of a cloth folded flat,
+    # their sum is round-off: +z then, as for a vertex without faces
+    total = np.bincount(at, weights=np.repeat(np.linalg.norm(fn, axis=1), 3), minlength=n)
+    flat = ~(size > 1e-9 * total) | ~(size > 1e-300)
+    nrm[flat] = (0.0, 0.0, 1.0)
+    size[flat] = 1.0
+    nrm /= size[:, None]
+    # the first tangent: the coordinate axis least along the normal, made normal to it
+    e = np.eye(3)[np.argmin(np.abs(nrm), axis=1)]
+    t1 = e - np.sum(e * nrm, axis=1)[:, None] * nrm
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    return np.stack([t1, np.cross(nrm, t1), nrm], axis=2)
