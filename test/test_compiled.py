@@ -229,7 +229,7 @@ _REFCOUNT = """
 import numba as nb
 import numpy as np
 from cosserat_ros.core.compiled import kernel
-from cosserat_ros.core.self_contact import segment_segment
+from cosserat_ros.core.surface_query import segment_segment
 
 
 def closest(x, out):

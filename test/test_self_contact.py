@@ -11,7 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from cosserat_ros.core import self_contact as SC
+from cosserat_ros.core import self_candidates as CAND, self_contact as SC
+from cosserat_ros.core.surface_query import segment_segment
 from cosserat_ros.core.terms import TERMS
 from cosserat_ros.mesh import ClothMesh, grid_mesh
 from cosserat_ros.simulator import ClothSimulator, Material
@@ -63,7 +64,7 @@ def test_segment_segment_is_the_closest_pair_of_points():
         p0, p1, q0, q1 = rng.normal(size=(4, 3))
         if _ % 5 == 0:
             q1 = q0 + 0.5 * (p1 - p0)                       # parallel
-        dd, a, b = SC.segment_segment(p0, p1, q0, q1)
+        dd, a, b = segment_segment(p0, p1, q0, q1)
         P = p0 + s[:, None] * (p1 - p0)
         Q = q0 + s[:, None] * (q1 - q0)
         brute = ((P[:, None] - Q[None]) ** 2).sum(-1).min()
@@ -85,7 +86,7 @@ def test_candidates_are_every_pair_within_the_radius():
     radius, th = 0.008, 1e-4
     vt = np.zeros((10000, 2), np.int64)
     ee = np.zeros((40000, 2), np.int64)
-    nvt, nee = SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt, ee,
+    nvt, nee = CAND.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt, ee,
                                    np.zeros(10000), np.zeros(40000))
     assert 0 < nvt <= len(vt) and 0 < nee <= len(ee)
     got_vt = {tuple(p) for p in vt[:nvt]}
@@ -110,21 +111,21 @@ def test_candidates_are_every_pair_within_the_radius():
     # is within the radius by the exact test
     assert want_ee <= got_ee
     for e, f in got_ee:
-        assert SC.segment_segment(x[E[e, 0]], x[E[e, 1]], x[E[f, 0]], x[E[f, 1]])[0] \
+        assert segment_segment(x[E[e, 0]], x[E[e, 1]], x[E[f, 0]], x[E[f, 1]])[0] \
             < radius ** 2
     # arrays too short: counts above their lengths, then at those lengths the same lists
     # in the same order (the parallel build's slabs put back in the serial order)
-    short = SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th,
+    short = CAND.build_candidates(x, X, mesh.faces, mesh.edges, radius, th,
                                 np.zeros((8, 2), np.int64), np.zeros((8, 2), np.int64),
                                 np.zeros(8), np.zeros(8))
     assert short[0] > 8 and short[1] > 8
     vt2, ee2 = np.zeros((short[0], 2), np.int64), np.zeros((short[1], 2), np.int64)
     vtd2, eed2 = np.zeros(short[0]), np.zeros(short[1])
-    assert SC.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt2, ee2, vtd2,
+    assert CAND.build_candidates(x, X, mesh.faces, mesh.edges, radius, th, vt2, ee2, vtd2,
                                eed2) == (nvt, nee)
     np.testing.assert_array_equal(vt2[:nvt], vt[:nvt])
     np.testing.assert_array_equal(ee2[:nee], ee[:nee])
-    slabs = np.arange(-(-len(F) // SC.BUILD_BLOCK)) % SC.BUILD_SLABS
+    slabs = np.arange(-(-len(F) // CAND.BUILD_BLOCK)) % CAND.BUILD_SLABS
     assert len(set(slabs)) > 1                  # the triangles fill more than one slab
 
 
@@ -163,9 +164,9 @@ def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
         if trial == 2:
             sc.vt, sc.vtd = sc.vt[:sc.nvt + 2].copy(), sc.vtd[:sc.nvt + 2].copy()
             sc.ee, sc.eed = sc.ee[:sc.nee + 2].copy(), sc.eed[:sc.nee + 2].copy()
-        SC._displacement(x0, sc.xb, sc.moved)
-        SC._displacement(x0, x0, sc.step_moved)          # no motion in this step
-        far = sc.moved > SC.REFRESH * sc.skin
+        CAND._displacement(x0, sc.xb, sc.moved)
+        CAND._displacement(x0, x0, sc.step_moved)          # no motion in this step
+        far = sc.moved > CAND.REFRESH * sc.skin
         xb = sc.xb.copy()
         assert sc._refresh(x0, x0, th)
         # the vertices that moved furthest took new references, where all of them have
@@ -176,7 +177,7 @@ def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
         n = 4 * (sc.nvt + sc.nee) + 64
         vt, ee = np.zeros((n, 2), np.int64), np.zeros((n, 2), np.int64)
         vtd, eed = np.zeros(n), np.zeros(n)
-        nvt, nee = SC.build_candidates(sc.xb, mesh.vertices, mesh.faces, mesh.edges,
+        nvt, nee = CAND.build_candidates(sc.xb, mesh.vertices, mesh.faces, mesh.edges,
                                        th + sc.skin, th, vt, ee, vtd, eed)
         assert nvt <= n and nee <= n
         for got, want in ((_pairs(sc.vt, sc.vtd, sc.nvt), _pairs(vt, vtd, nvt)),
@@ -187,7 +188,7 @@ def test_a_partial_refresh_finds_what_a_full_build_finds_at_its_references():
         assert len(_pairs(sc.ee, sc.eed, sc.nee)) == sc.nee > 0
     # most of the vertices moved: no partial refresh, the list is built anew
     x0 = sc.xb + rng.normal(scale=0.01, size=sc.xb.shape)
-    SC._displacement(x0, sc.xb, sc.moved)
+    CAND._displacement(x0, sc.xb, sc.moved)
     xb = sc.xb.copy()
     assert not sc._refresh(x0, x0, th)
     np.testing.assert_array_equal(sc.xb, xb)
@@ -233,7 +234,7 @@ def test_a_sliding_layer_has_its_candidates_distances_taken_again():
             *start[i], start[a], start[b], start[c])[0]), rel=1e-12)
     for q in range(sc.nee):
         e, f = sc.ee[q]
-        assert sc.eed[q] == pytest.approx(math.sqrt(SC.segment_segment(
+        assert sc.eed[q] == pytest.approx(math.sqrt(segment_segment(
             start[E[e, 0]], start[E[e, 1]], start[E[f, 0]], start[E[f, 1]])[0]), rel=1e-12)
 
 

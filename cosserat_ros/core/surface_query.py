@@ -23,7 +23,7 @@ import numpy as np
 
 from .compiled import kernel
 
-__all__ = ['closest_points', 'closest_points_brute', 'triangle_barycentric',
+__all__ = ['segment_segment', 'closest_points', 'closest_points_brute', 'triangle_barycentric',
            'point_triangle_sq']
 
 
@@ -278,3 +278,54 @@ def closest_points(x: np.ndarray, faces: np.ndarray, points: np.ndarray):
         lo, h, dims, start, items = _grid(x, faces)
         _closest_grid(x, faces, points, lo, h, dims, start, items, tri, bary)
     return tri, bary
+
+
+@kernel(inline='always')
+def _clamp01(a):
+    return min(max(a, 0.0), 1.0)
+
+
+@kernel(refcount=False)
+def segment_segment(p0, p1, q0, q1):
+    """Parameters (s, t) of the closest points ``p0 + s (p1 - p0)`` and ``q0 + t (q1 -
+    q0)`` of two segments (Ericson, Real-Time Collision Detection, 5.1.9), and their
+    squared distance: (dd, s, t)."""
+    d10 = p1[0] - p0[0]
+    d11 = p1[1] - p0[1]
+    d12 = p1[2] - p0[2]
+    d20 = q1[0] - q0[0]
+    d21 = q1[1] - q0[1]
+    d22 = q1[2] - q0[2]
+    r0 = p0[0] - q0[0]
+    r1 = p0[1] - q0[1]
+    r2 = p0[2] - q0[2]
+    a = d10 * d10 + d11 * d11 + d12 * d12
+    e = d20 * d20 + d21 * d21 + d22 * d22
+    f = d20 * r0 + d21 * r1 + d22 * r2
+    eps = 1e-30
+    if a <= eps and e <= eps:
+        s = 0.0
+        t = 0.0
+    elif a <= eps:
+        s = 0.0
+        t = _clamp01(f / e)
+    else:
+        c = d10 * r0 + d11 * r1 + d12 * r2
+        if e <= eps:
+            t = 0.0
+            s = _clamp01(-c / a)
+        else:
+            b = d10 * d20 + d11 * d21 + d12 * d22
+            den = a * e - b * b
+            s = _clamp01((b * f - c * e) / den) if den > 0.0 else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = _clamp01(-c / a)
+            elif t > 1.0:
+                t = 1.0
+                s = _clamp01((b - c) / a)
+    e0 = r0 + s * d10 - t * d20
+    e1 = r1 + s * d11 - t * d21
+    e2 = r2 + s * d12 - t * d22
+    return e0 * e0 + e1 * e1 + e2 * e2, s, t
