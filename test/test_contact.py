@@ -1009,7 +1009,7 @@ def test_a_cloth_over_a_round_table_and_the_weight_it_puts_on_it():
 def test_sharp_features_of_a_mesh():
     """The corners and edges of a mesh obstacle that meet the cloth's triangles and
     edges: its convex edges whose faces turn by more than 30 degrees."""
-    from cosserat_ros.core.features import sharp_features
+    from cosserat_ros.core.feature_shapes import sharp_features
     box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
     corners, edges = sharp_features(box.vertices, box.faces)
     assert len(corners) == 8 and len(edges) == 12           # not the faces' diagonals

@@ -30,7 +30,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from . import contact as C
-from .features import FM_CORNER, FM_EDGE, FM_HI, FM_LO, FM_NCORNER, FM_NEDGE, FM_WIDTH, \
+from .feature_shapes import FM_CORNER, FM_EDGE, FM_HI, FM_LO, FM_NCORNER, FM_NEDGE, FM_WIDTH, \
     sharp_features
 
 __all__ = ['ObstacleSet', 'SHAPE_ARGS']
