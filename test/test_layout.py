@@ -114,3 +114,13 @@ def test_the_imports_at_load_form_no_cycle():
     for m in sorted(graph):
         if m not in state:
             visit(m, [m])
+
+
+#: the longest a module may grow before it is split by what its parts do (issue 57)
+MOST_LINES = 800
+
+
+def test_no_module_is_over_eight_hundred_lines():
+    long = {m: n for m, n in ((m, sum(1 for _ in open(p))) for m, p in MODULES.items())
+            if n > MOST_LINES}
+    assert not long, f'split these by what their parts do: {long}'

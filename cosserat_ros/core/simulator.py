@@ -32,12 +32,10 @@ import warnings
 import numba
 import numpy as np
 
-from . import energy as _energy
 from . import contact as C
 from .air import Air, air_pass, air_row
 from .constants import DIVERGENCE_SPEED_FACTOR, VERTEX_CHUNK
-from .geometry import CURVATURE_ESTIMATORS, Geometry
-from .material import Material, material_tensor
+from .material import Material
 from .mesh import ClothMesh
 from .model import Model
 from .handles import HandleSet
@@ -45,11 +43,12 @@ from .threads import ThreadTuner, run_tuned
 from .obstacles import ObstacleSet
 from .features import FeatureContact
 from .self_contact import DEFAULT_FRICTION, SelfCollision
+from .simulator_analysis import AnalysisMethods
+from .simulator_scene import SceneMethods
 from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
-from .solvers.stability import critical_dt as _critical_dt, max_eigenpair as _max_eigenpair
 from .state import Control, State
-from .terms import covariant, registry
+from .terms import registry
 from .terms.jet import model_scratch
 
 __all__ = ['ClothSimulator', 'Material', 'Air', 'SimulationDiverged', 'steps_tiled',
@@ -93,7 +92,7 @@ def _extra_terms(given) -> list:
     return [(t, registry.values_of(t, given.get(t.name))) for t in extras]
 
 
-class ClothSimulator:
+class ClothSimulator(SceneMethods, AnalysisMethods):
     """Elastic Cosserat surface on a triangle mesh, integrated explicitly (Eq. 29, the
     default) or by backward Euler (``solver='implicit'``).
 
@@ -638,236 +637,6 @@ class ClothSimulator:
             self.control.pin_velocity[:] = 0.0
         return done
 
-    # ------------------------------------------------------------------ handles
-    def grasp(self, point=None, radius=None, vertices=None, name=None,
-              break_force=None, orientation=(0.0, 0.0, 0.0, 1.0)) -> int:
-        """Grab the cloth: the vertices within ``radius`` [m] of ``point``, or the
-        ``vertices`` given (the handle's origin then ``point``, or their centroid), as
-        they are now. Returns the handle id; from now on they move rigidly with the
-        handle's pose (:meth:`move_handle`) and :meth:`handle_wrench` is what the handle
-        exerts on them. ``break_force`` [N]: each vertex holds at most its share of it
-        and slips out above. ``orientation``: the handle frame's at the grasp (later
-        poses turn the offsets from it). ``ValueError`` if nothing is within the radius,
-        or a vertex is held by another handle. Physics: :mod:`cosserat_ros.core.handles`."""
-        if vertices is not None:
-            vertices = self._indices(vertices, 'vertices')
-        hid = self._handles.grasp(self.state.x, point, radius, vertices, name, break_force,
-                                  orientation)
-        self._sync_pins()
-        return hid
-
-    def move_handle(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
-                    duration=None, at=None) -> None:
-        """Move handle ``id`` to ``position`` [m], ``orientation`` (quaternion x, y, z, w),
-        reached linearly (slerp for the orientation) over ``duration`` seconds of sim
-        time (default: over the next step), starting from wherever the handle is and
-        replacing what it was doing; or, with ``at``, a sim time [s] after :attr:`time`,
-        arriving there at ``at`` (within one step) after the waypoints already given
-        before ``at`` (those after it are dropped): a trajectory streamed ahead of
-        simulation time, at most :data:`.handles.MAX_WAYPOINTS` waypoints. ``ValueError``
-        for a time not ahead or too many waypoints."""
-        self._handles.move(id, self._time, self._dt, position, orientation, duration, at)
-
-    def handle_waypoints(self, id) -> list:
-        """[(time [s], position (3,), orientation (x, y, z, w))]: handle ``id``'s pose now,
-        then the waypoints it has ahead (:meth:`move_handle`)."""
-        return self._handles.waypoints(id, self._time)
-
-    def handle_wrench(self, id):
-        """(force (3) [N], torque (3) [N m]) the handle exerted on the cloth over the last
-        step, world frame, torque about the handle's position (hanging at rest: the
-        weight it carries, upwards). A handle whose every vertex slipped out (its
-        ``break_force``) is gone: ``ValueError``, and it is no longer in :attr:`handles`."""
-        return self._handles.wrench(id, self.state.x, self.control.reaction)
-
-    @property
-    def handles(self) -> Dict[int, dict]:
-        """{id: description}: name, vertices, pose, whether it is moving, break force."""
-        return self._handles.describe(self._time)
-
-    def release(self, id) -> None:
-        """Let go: the vertices go back to the dynamics with the velocity they had."""
-        self._handles.release(id)
-        self._sync_pins()
-
-    # ------------------------------------------------------------------ obstacles
-    def add_obstacle(self, shape: str, friction=0.5, name: Optional[str] = None,
-                     **geometry) -> int:
-        """Add a rigid obstacle; returns its id. Shapes and their geometry [m]:
-
-        * ``'plane'``: ``point``, ``normal`` (the solid side is opposite the normal; the
-          ground by default: point (0, 0, 0), normal (0, 0, 1));
-        * ``'sphere'``: ``center``, ``radius``;
-        * ``'box'``: ``center``, ``half_extents``, ``orientation`` (quaternion x, y, z, w);
-        * ``'capsule'``, ``'cylinder'``: ``center``, ``radius``, ``half_length``,
-          ``orientation`` (axis = local z);
-        * ``'mesh'``: ``vertices`` and ``faces``, or ``file`` (OBJ / STL / PLY, loaded by
-          trimesh), a closed mesh; ``center``, ``orientation`` place it, ``spacing`` is
-          its distance field's grid step (default 1 cm).
-
-        ``friction``: mu, or (mu_static, mu_kinetic) with kinetic <= static (default 0.5
-        both). ``name``: unique, default ``<shape>_<id>``. Raises ``ValueError`` with the
-        reason for a bad shape or geometry. Physics: :mod:`cosserat_ros.core.contact`.
-        An obstacle added through the cloth is released from the vertices inside it
-        until they are out of its contact layer (:mod:`.contact`, "Obstacles placed
-        through the cloth").
-        """
-        oid = self._obstacles.add(shape, friction=friction, name=name, **geometry)
-        self._sync_obstacles(changed_set=True)
-        self._release(oid)
-        return oid
-
-    def set_obstacle_pose(self, id, position, orientation=(0.0, 0.0, 0.0, 1.0),
-                          linear_velocity=(0.0, 0.0, 0.0),
-                          angular_velocity=(0.0, 0.0, 0.0)) -> None:
-        """Place obstacle ``id`` at ``position`` [m] with ``orientation`` (quaternion x, y,
-        z, w; for a plane, the rotation of its normal from +z) and let it move on with
-        the given velocities [m/s, rad/s, world frame] until the next call. The new pose
-        carries the vertices that were within 2 contact thicknesses of it; the others
-        it is placed through are released from it until they are out of its contact
-        layer (:mod:`.contact`, "Obstacles placed through the cloth")."""
-        before = self._obstacles.distances(id, self.state.x)
-        self._obstacles.set_pose(id, position, orientation, linear_velocity,
-                                 angular_velocity)
-        self._sync_obstacles()
-        self._release(id, before)
-
-    def remove_obstacle(self, id) -> None:
-        """Remove obstacle ``id`` (``ValueError`` if there is none)."""
-        self._obstacles.remove(id)
-        self._sync_obstacles(changed_set=True)
-
-    @property
-    def obstacles(self) -> Dict[int, dict]:
-        """{id: description} of the obstacles: name, shape, geometry, pose, velocities,
-        friction (a copy; change them through the methods)."""
-        return self._obstacles.describe()
-
-    def find_obstacle(self, name: str) -> Optional[int]:
-        """The id of the obstacle called ``name``, or None."""
-        return self._obstacles.find(name)
-
-    def obstacle_snapshot(self):
-        """An opaque copy of the obstacle set: :meth:`restore_obstacles` undoes every
-        change made after it (a batch of changes applied all or not at all)."""
-        return self._obstacles.snapshot()
-
-    def restore_obstacles(self, snapshot) -> None:
-        self._obstacles.restore_snapshot(snapshot)
-        self._sync_obstacles(changed_set=True)
-
-    def obstacle_mesh(self, id):
-        """(vertices, faces) of a mesh obstacle in its own frame, else None."""
-        return self._obstacles.mesh_of(id)
-
-    def contact_forces(self) -> Dict[int, tuple]:
-        """{id: (force (3) [N], torque (3) [N m] about the obstacle's position)}: what the
-        cloth exerted on each obstacle over the last step (at rest on the ground: its
-        weight). The corners and edges of boxes, cylinders and meshes (:mod:`.features`)
-        add the mean of what they took over the steps of the last :meth:`step` call:
-        their projection acts in the steps where the cloth has sunk beyond its slack,
-        not in every one."""
-        return self._obstacles.forces(self.state.x, self.control.contact,
-                                      self._features.forces)
-
-    def contact_state(self) -> Dict[str, float]:
-        """Contact counts and depth of the last step: ``contacts`` (vertices in contact),
-        ``deepest`` [m] (how far the deepest vertex was inside the contact layer at the
-        start of its step, >= 0), ``feature_pairs`` (candidate pairs of the corners and
-        edges of boxes and cylinders with the cloth's triangles and edges,
-        :mod:`.features`),
-        ``feature_active`` (those the last step's response moved) and ``released``
-        (vertices an obstacle placed through them does not act on yet, :mod:`.contact`)."""
-        c = self.control.contact
-        active = c[:, C.C_ID] >= 0
-        gap = c[:, C.C_GAP]
-        deepest = float(max(0.0, -gap.min())) if len(self._obstacles) and len(gap) else 0.0
-        return {'contacts': int(active.sum()), 'deepest': deepest,
-                'feature_pairs': int(self._features.pairs),
-                'feature_active': int(self._features.acted),
-                'released': int(np.count_nonzero(C.released_rows(c)))}
-
-    @property
-    def contact_thickness(self) -> float:
-        """Distance [m] the cloth keeps from every obstacle surface (default 2 mm)."""
-        return float(self.control.contact_params[0])
-
-    @contact_thickness.setter
-    def contact_thickness(self, value: float):
-        self.control.contact_params[0] = self._check_positive(value, 'contact_thickness')
-
-    # ------------------------------------------------------------------ self-collision
-    @property
-    def self_collision(self) -> bool:
-        """Whether the cloth collides with itself (:mod:`.self_contact`; default False):
-        vertex-triangle and edge-edge pairs kept :attr:`contact_thickness` apart, with
-        friction :attr:`self_friction` between the layers. It costs a response after
-        every step while pairs are near, and little while none is (docs/performance.md)."""
-        return self._self_on
-
-    @self_collision.setter
-    def self_collision(self, on):
-        if not isinstance(on, (bool, np.bool_)):
-            raise ValueError(f'self_collision must be True or False, got {on!r}')
-        if on and self._self is None:
-            self._self = SelfCollision(self.mesh)
-            self._self.friction = self._self_friction
-        self._self_on = bool(on)
-
-    @property
-    def self_friction(self) -> float:
-        """Coulomb friction coefficient between two layers of the cloth (default 0.5)."""
-        return self._self_friction
-
-    @self_friction.setter
-    def self_friction(self, mu: float):
-        try:
-            mu = float(mu)
-        except (TypeError, ValueError):
-            raise ValueError(f'self_friction must be a number, got {mu!r}') from None
-        if not (math.isfinite(mu) and mu >= 0):
-            raise ValueError(f'self_friction must be finite and >= 0, got {mu!r}')
-        self._self_friction = mu
-        if self._self is not None:
-            self._self.friction = mu
-
-    def self_contact_state(self) -> Dict[str, float]:
-        """The last step's self-contact (:meth:`.self_contact.SelfCollision.report`):
-        ``candidates``, ``live``, ``active`` (pairs the response moved), ``left_short``,
-        ``closest_gap`` [m], ``builds``; zeros while self-collision is off."""
-        if self._self is None or not self._self_on:
-            return {'candidates': 0, 'live': 0, 'active': 0, 'rounds': 0, 'sweeps': 0,
-                    'left_short': 0, 'closest_gap': math.inf, 'builds': 0}
-        return self._self.report()
-
-    def _sync_obstacles(self, changed_set: bool = False) -> None:
-        """The obstacles' table into the control; ``changed_set``: obstacles were added or
-        removed, so the last step's contact rows (which name obstacles by table row) and
-        the corners' forces name rows that may now be other obstacles: cleared."""
-        o = self._obstacles
-        self.control = self.control.with_obstacles(o.table, o.meta, o.data)
-        self._features.set_shapes(*o.shapes)
-        # the release masks follow their obstacles' rows (:mod:`.obstacles`)
-        masks = o.remap_released(C.released_rows(self.control.contact))
-        if changed_set or not len(o):
-            self._clear_contacts()
-        C.store_released_rows(self.control.contact, masks)
-
-    def _release(self, oid, before=None) -> None:
-        """Obstacle ``oid``'s release of the vertices it was just placed through
-        (:meth:`.obstacles.ObstacleSet.release`; ``before``: their distances from it at
-        its old pose)."""
-        c = self.control.contact
-        C.store_released_rows(c, self._obstacles.release(
-            oid, self.state.x, C.released_rows(c), self.contact_thickness, before,
-            self.control.pinned))
-
-    def _clear_contacts(self) -> None:
-        """Forget the last step's contact output: each vertex's contact row (force, none)
-        and the corners' and edges' forces (:mod:`.features`)."""
-        self.control.contact[:] = C.NO_CONTACT
-        self._features.start()
-
     # ------------------------------------------------------------------ terms
     @property
     def terms(self) -> Dict[str, Dict[str, float]]:
@@ -896,139 +665,6 @@ class ClothSimulator:
         out = np.zeros((self.n_vertices, 3))
         self.solver.internal_forces(self.state.x, self.coefficients, out)
         return out
-
-    # ------------------------------------------------------------------ energy
-    def energy_and_densities(self):
-        """:meth:`energy` and :meth:`energy_densities` from one evaluation of the fields
-        and of the internal force."""
-        # the explicit solver's velocity is half a step behind x (leapfrog), the implicit
-        # one's at x's time: the report carries it by dt / 2 for the first only
-        lag = self._dt if self._solver_kind == 'explicit' else 0.0
-        energy, dens = _energy.report(self.model, self.coefficients, self.state, self.control,
-                                      lag, self._scratch, self.internal_forces())
-        if self._terms:
-            # each registered term under its name, in the total (not in ``elastic``, the
-            # Cosserat surface's own), at the positions (the report's x)
-            extra = {t.name: float(t.energy(self.model, self.state.x, c))
-                     for t, c in self._terms}
-            total = energy['total'] + sum(extra.values())
-            energy = {k: v for k, v in energy.items() if k != 'total'}
-            energy.update(extra)
-            energy['total'] = total
-        return energy, dens
-
-    def energy_densities(self) -> Dict[str, np.ndarray]:
-        """Per-vertex energy densities [J/m^2] (seed Fig. 4): ``stretching``, ``bending``,
-        ``coupling`` and ``total``, each (n,)."""
-        return self.energy_and_densities()[1]
-
-    def energy(self) -> Dict[str, float]:
-        """Energies [J] of the current state and the running balance terms.
-
-        ``kinetic`` uses the velocity synchronised with the positions (for the explicit
-        solver the leapfrog half-step correction v + dt/2 a; the implicit solver's
-        velocity is at the positions' time), ``stretching``, ``bending``, ``coupling`` are the
-        discrete elastic energy terms (``elastic`` their sum), ``gravity`` is
-        -sum m g . x, each registered term's energy under its name (:attr:`terms`),
-        ``total`` = kinetic + elastic + gravity + those. ``external_work`` (nodal
-        forces, force field, air, and what pins, handles and obstacles do) and
-        ``dissipated`` (damping, friction) accumulate since the last
-        reset, so ``total - total(0) ~ external_work - dissipated``.
-        """
-        return self.energy_and_densities()[0]
-
-    # ------------------------------------------------------------------ inspection
-    def geometry(self, curvature: str = 'jet') -> Geometry:
-        """Per-vertex geometry of the current state (see :class:`Geometry`).
-
-        ``curvature`` selects the curvature estimator: ``"jet"`` (cubic least-squares
-        jet, convergent, default) or ``"seed"`` (normal differences along the 1-ring, the
-        seed's Sec. 5.2; does not converge, kept for comparison).
-        """
-        if curvature not in CURVATURE_ESTIMATORS:
-            raise ValueError(f'curvature must be one of {CURVATURE_ESTIMATORS}, '
-                             f'got {curvature!r}')
-        return self.model.geometry(self.state.x, curvature)
-
-    def resultants(self) -> Dict[str, np.ndarray]:
-        """Per-vertex contact quantities from the vertex strains, for inspection:
-        ``M`` = M^ab (n,2,2), ``N`` = N^ab (n,2,2) (Eq. 28), ``N3`` = N^3b = M^ba|_a (n,2),
-        ``force_vectors`` N^b (n,2,3) (Eq. 26), and the material tensors ``Phi``, ``Psi``,
-        ``Theta`` (n,2,2,2,2) of Eq. 19."""
-        cw = covariant.resultants(self.model, self.coefficients, self.state.x)
-        n3 = np.einsum('nbk,nk->nb', cw.nvec, cw.basis[:, 2])
-        A = self.model.rest.metric
-        mat = self._material
-        return {'M': cw.mres, 'N': cw.nres, 'N3': n3, 'force_vectors': cw.nvec,
-                'Phi': material_tensor(mat.zeta, A), 'Psi': material_tensor(mat.xi, A),
-                'Theta': material_tensor(mat.phi, A)}
-
-    # ------------------------------------------------------------------ stability
-    def critical_dt(self, material: Optional[Material] = None) -> float:
-        """Largest stable time step [s] for this mesh and material, or for another
-        ``material`` on the same mesh: 0.8 of the damped symplectic Euler limit for the
-        highest frequency of the system linearised at rest (:mod:`.solvers.stability`).
-
-        The first call runs the full estimate (60 Lanczos iterations); later materials
-        update it (:meth:`_material_omega2`), so that a run-time material change costs
-        milliseconds, not a new estimate."""
-        if material is not None and material != self._material:
-            if not isinstance(material, Material):
-                raise ValueError(f'material must be a Material, got {type(material).__name__}')
-            return _critical_dt(self._material_omega2(material), material.density,
-                                material.damping)
-        if self._critical_dt is None:
-            self._critical_dt = _critical_dt(self._material_omega2(self._material),
-                                             self._material.density, self._material.damping)
-        return self._critical_dt
-
-    #: Lanczos iterations of an update from the first estimate's Ritz vector
-    UPDATE_ITERATIONS = 12
-
-    def _material_omega2(self, material: Material) -> float:
-        """omega_max^2 at rest for ``material``. The internal force is linear in the
-        stiffness coefficients (zeta, xi, phi) and the mass in the density, so for
-        coefficients c = s c0 and density mu, omega^2 = s (mu0 / mu) omega0^2 exactly
-        (damping does not enter). Any other change runs :data:`UPDATE_ITERATIONS` Lanczos
-        iterations from the first estimate's top Ritz vector (an upper estimate still:
-        Ritz value plus residual). Results are kept per material."""
-        stiff = np.array([material.zeta, material.xi, material.phi])
-        key = (*stiff.tolist(), material.density)
-        if key in self._omega2_known:
-            return self._omega2_known[key]
-        coeff = self.model.coefficients(material)
-        if self._omega2_base is None:
-            w2, vec = self._omega2(coeff, self.mesh.vertices)
-            self._omega2_base = (material, w2, vec)
-        else:
-            m0, w0, vec0 = self._omega2_base
-            stiff0 = np.array([m0.zeta, m0.xi, m0.phi])
-            k = int(np.argmax(np.abs(stiff0)))
-            scale = stiff[k] / stiff0[k] if stiff0[k] else 0.0
-            # (not with registered terms: their stiffness does not scale with the material)
-            if (scale > 0 and not registry.acting(self._terms)
-                    and np.allclose(stiff, scale * stiff0, rtol=1e-12, atol=0.0)):
-                w2 = w0 * scale * m0.density / material.density
-            else:
-                w2, _ = self._omega2(coeff, self.mesh.vertices, self.UPDATE_ITERATIONS,
-                                     start=vec0)
-        if len(self._omega2_known) > 64:
-            self._omega2_known.clear()
-        self._omega2_known[key] = w2
-        return w2
-
-    def max_eigenvalue(self, iterations: int = 60, seed: int = 0,
-                       at: Optional[np.ndarray] = None) -> float:
-        """omega_max^2 [1/s^2] of the free system linearised at rest, or at positions
-        ``at`` (Lanczos, an upper estimate: largest Ritz value plus its residual)."""
-        X = self.mesh.vertices if at is None else np.asarray(at, dtype=np.float64)
-        return self._omega2(self.coefficients, X, iterations, seed)[0]
-
-    def _omega2(self, coeff, X, iterations: int = 60, seed: int = 0, start=None):
-        def force(x, out):
-            self.solver.internal_forces(np.ascontiguousarray(x), coeff, out)
-        return _max_eigenpair(force, coeff.mass, X, self.mesh.mean_edge_length, iterations,
-                              seed, start)
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
