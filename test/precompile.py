@@ -49,7 +49,7 @@ def main():
         _sim(6, phi, simd=False).step(1)
     s = ClothSimulator(grid_mesh(6, 6), Material(zeta=10.0, xi=1e-3, phi=1e-4,
                                                  density=0.2), dt=1e-6, check_dt=False,
-                       divergence='covariant')
+                       discretisation='covariant')
     s.pin(s.mesh.boundary_vertices)
     s.step(1)
     for phi in (0.0, 1e-6):                      # the tiled step (4096 vertices and more)

@@ -47,7 +47,7 @@ def test_one_step_with_air_changes_each_velocity_by_dt_f_air_over_m(route):
     out = []
     for air in (None, Air(lift=0.5)):
         mat = Material.from_plate(500.0, 1e-2, density=RHO_S)
-        sim = ClothSimulator(grid_mesh(10, 10), mat, dt=1e-4, divergence=div,
+        sim = ClothSimulator(grid_mesh(10, 10), mat, dt=1e-4, discretisation=div,
                              check_dt=False)
         sim.pin(np.flatnonzero(sim.mesh.boundary_vertices))
         rng = np.random.default_rng(1)

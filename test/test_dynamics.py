@@ -341,14 +341,33 @@ def test_covariant_route_is_consistent_but_unstable():
         mesh = grid_mesh(n, n)
         f = []
         for div in ('variational', 'covariant'):
-            sim = ClothSimulator(mesh, sc.plate_material(), divergence=div, check_dt=False)
+            sim = ClothSimulator(mesh, sc.plate_material(), discretisation=div, check_dt=False)
             sim.set_positions(_bump(mesh, 1e-3))
             f.append(sim.internal_forces()[:, 2] / mesh.dual_areas)
         inner = np.abs(mesh.vertices[:, :2]).max(axis=1) < 0.3
         diffs.append(np.abs(f[0] - f[1])[inner].max() / np.abs(f[0][inner]).max())
     assert diffs[1] < 0.05 and diffs[1] < diffs[0] / 3
     with pytest.raises(SimulationDiverged):
-        sc.plate_deflection(16, 'regular', divergence='covariant', dt_factor=0.5)
+        sc.plate_deflection(16, 'regular', discretisation='covariant', dt_factor=0.5)
+
+
+def test_the_name_before_discretisation_still_works_with_a_warning():
+    """``divergence`` was the discretisation's name before 0.2 (issue 57: it now means a
+    blow-up only): the keyword and the property still work for one release, warned."""
+    mesh = grid_mesh(6, 6)
+    with pytest.warns(DeprecationWarning, match='discretisation'):
+        sim = ClothSimulator(mesh, MAT, divergence='covariant', check_dt=False)
+    assert sim.discretisation == 'covariant'
+    with pytest.warns(DeprecationWarning, match='discretisation'):
+        assert sim.divergence == 'covariant'
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match='disagree'):
+        ClothSimulator(mesh, MAT, discretisation='covariant', divergence='variational')
+    from cosserat_ros.ros.params import ConfigError
+    from cosserat_ros.ros.scene import check_parameters
+    with pytest.warns(FutureWarning, match='divergence is deprecated'):
+        assert check_parameters({'divergence': 'covariant'})['discretisation'] == 'covariant'
+    with pytest.raises(ConfigError, match='disagree'):
+        check_parameters({'divergence': 'covariant', 'discretisation': 'magic'})
 
 
 def test_api_validation():
@@ -357,8 +376,8 @@ def test_api_validation():
         ClothSimulator(mesh, MAT, dt=0.0)
     with pytest.raises(ValueError, match='dt must be positive'):
         ClothSimulator(mesh, MAT, dt=float('nan'))
-    with pytest.raises(ValueError, match='divergence must be one of'):
-        ClothSimulator(mesh, MAT, divergence='spectral')
+    with pytest.raises(ValueError, match='discretisation must be one of'):
+        ClothSimulator(mesh, MAT, discretisation='spectral')
     with pytest.raises(ValueError, match='must be a ClothMesh'):
         ClothSimulator(mesh.vertices, MAT)
     for kw, match in ((dict(zeta=-1.0), 'must not be negative'),

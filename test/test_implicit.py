@@ -495,7 +495,7 @@ def test_solver_arguments_are_checked():
     with pytest.raises(ValueError, match='solver must be one of'):
         ClothSimulator(mesh, fabric(), solver='verlet', check_dt=False)
     with pytest.raises(ValueError, match='variational'):
-        ClothSimulator(mesh, fabric(), solver='implicit', divergence='covariant',
+        ClothSimulator(mesh, fabric(), solver='implicit', discretisation='covariant',
                        check_dt=False)
     ex = ClothSimulator(mesh, fabric(), check_dt=False)
     with pytest.raises(ValueError, match='implicit solver'):

@@ -486,7 +486,11 @@ def test_pause_service(h):
     ({'air.wind': [0.0, 0.0, 80.0]}, 'max_wind'),
     ({'air.drag': -1.0}, 'air.drag'),
     ({'solver': 'verlet'}, 'solver must be one of'),
-    ({'solver': 'implicit', 'divergence': 'covariant'}, 'needs divergence: variational'),
+    ({'solver': 'implicit', 'discretisation': 'covariant'},
+     'needs discretisation: variational'),
+    # the name before 0.2 is still taken (carried to discretisation, with a warning)
+    ({'solver': 'implicit', 'divergence': 'covariant'}, 'needs discretisation: variational'),
+    ({'discretisation': 'covariant', 'divergence': 'variational'}, 'disagree'),
     ({'dt': 0.01}, 'critical step'),                      # explicit: far above it
 ])
 def test_bad_startup_parameters_are_refused(params, match):

@@ -40,7 +40,8 @@ BAD = {
     'gravity': ([0.0, 1.0], '3 finite numbers'),
     'pinned.indices': ([99999], 'pinned.indices'),
     'pinned.sets': (['middle'], 'pinned.sets'),
-    'divergence': ('magic', 'divergence'),
+    'discretisation': ('magic', 'discretisation'),
+    'divergence': ('magic', 'discretisation must be one of'),     # deprecated, carried
     'solver': ('runge_kutta', 'solver'),
     'solver.iterations': (0, 'solver.iterations'),
     'solver.tolerance': (2.0, 'solver.tolerance'),

@@ -66,7 +66,7 @@ def relax(sim: ClothSimulator, duration: float, chunk: int = 500) -> None:
 
 
 def plate_deflection(n: int, pattern: str = 'regular', support: str = 'simple',
-                     seed: int = 2, divergence: str = 'variational',
+                     seed: int = 2, discretisation: str = 'variational',
                      dt_factor: float = 0.9, solver: str = 'explicit') -> Dict[str, float]:
     """Static centre deflection of a square plate (side a = 1 m) under its own weight,
     by dynamic relaxation at critical damping of the fundamental mode: explicit at
@@ -77,7 +77,7 @@ def plate_deflection(n: int, pattern: str = 'regular', support: str = 'simple',
     mesh = grid_mesh(n, n, width=side, height=side, pattern=pattern, seed=seed)
     omega1 = 2 * math.pi ** 2 / a ** 2 * math.sqrt(PLATE_D / PLATE_MU)
     sim = ClothSimulator(mesh, plate_material(damping=2 * omega1 * PLATE_MU), dt=1e-5,
-                         divergence=divergence, check_dt=False, solver=solver)
+                         discretisation=discretisation, check_dt=False, solver=solver)
     if solver == 'implicit':
         sim.dt = 2 * math.pi / omega1 / 20.0
         sim.solver_tolerance = 1e-9

@@ -45,14 +45,14 @@ from .features import FeatureContact
 from .self_contact import DEFAULT_FRICTION, SelfCollision
 from .simulator_analysis import AnalysisMethods
 from .simulator_scene import SceneMethods
-from .solvers.explicit import DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
+from .solvers.explicit import DISCRETISATIONS, DIVERGENCE_METHODS, ExplicitSolver, steps_tiled
 from .solvers.implicit import ImplicitSolver
 from .state import Control, State
 from .terms import registry
 from .terms.jet import model_scratch
 
 __all__ = ['ClothSimulator', 'Material', 'Air', 'SimulationDiverged', 'steps_tiled',
-           'DIVERGENCE_METHODS']
+           'DISCRETISATIONS', 'DIVERGENCE_METHODS']
 
 
 class SimulationDiverged(RuntimeError):
@@ -104,10 +104,11 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
         Constants zeta, xi, phi, density, damping (SI units).
     dt : float
         Time step [s]; a warning is issued when it exceeds :meth:`critical_dt`.
-    divergence : {"variational", "covariant"}
+    discretisation : {"variational", "covariant"}
         Discretisation of the internal force N^a|_a: the exact negative gradient of the
         discrete energy (default; any boundary), or the seed's covariant derivatives
-        (comparison only; needs every boundary vertex pinned).
+        (comparison only; needs every boundary vertex pinned). ``divergence``, its name
+        before 0.2, is still taken, with a DeprecationWarning.
     check_dt : bool
         Compare ``dt`` with :meth:`critical_dt` on construction (costs ~100 force
         evaluations) and warn when it is too large.
@@ -129,24 +130,32 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
     SOLVERS = ('explicit', 'implicit')
 
     def __init__(self, mesh: ClothMesh, material: Material, dt: float = 2e-4,
-                 divergence: str = 'variational', check_dt: bool = True, simd: bool = True,
-                 solver: str = 'explicit', terms: Optional[Dict[str, dict]] = None):
+                 discretisation: str = 'variational', check_dt: bool = True,
+                 simd: bool = True, solver: str = 'explicit',
+                 terms: Optional[Dict[str, dict]] = None, *, divergence: Optional[str] = None):
         if not isinstance(mesh, ClothMesh):
             raise ValueError(f'mesh must be a ClothMesh, got {type(mesh).__name__}')
         if not isinstance(material, Material):
             raise ValueError(f'material must be a Material, got {type(material).__name__}')
-        if divergence not in DIVERGENCE_METHODS:
-            raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
-                             f'got {divergence!r}')
+        if divergence is not None:                  # the name before 0.2
+            warnings.warn("ClothSimulator(divergence=...) is deprecated: it is "
+                          "discretisation=... now", DeprecationWarning, stacklevel=2)
+            if discretisation != 'variational' and discretisation != divergence:
+                raise ValueError(f'discretisation={discretisation!r} and its deprecated '
+                                 f'name divergence={divergence!r} disagree')
+            discretisation = divergence
+        if discretisation not in DISCRETISATIONS:
+            raise ValueError(f'discretisation must be one of {DISCRETISATIONS}, '
+                             f'got {discretisation!r}')
         if solver not in self.SOLVERS:
             raise ValueError(f'solver must be one of {self.SOLVERS}, got {solver!r}')
-        if solver == 'implicit' and divergence != 'variational':
-            raise ValueError("solver='implicit' needs divergence='variational': the seed's "
-                             'covariant route has no energy to minimise')
+        if solver == 'implicit' and discretisation != 'variational':
+            raise ValueError("solver='implicit' needs discretisation='variational': the "
+                             "seed's covariant route has no energy to minimise")
         self.mesh = mesh
-        self._divergence = divergence
+        self._discretisation = discretisation
         self.model = Model.from_mesh(mesh)
-        self.solver = ExplicitSolver(self.model, divergence, simd)
+        self.solver = ExplicitSolver(self.model, discretisation, simd)
         self._terms = _extra_terms(terms)
         self.solver.extra = self._terms              # (the implicit solver reads its own)
         if solver == 'implicit':
@@ -244,9 +253,16 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
         self._dt = self._check_positive(value, 'dt')
 
     @property
+    def discretisation(self) -> str:
+        """The discretisation of N^a|_a in use: 'variational' or 'covariant'."""
+        return self._discretisation
+
+    @property
     def divergence(self) -> str:
-        """The discretisation of N^a|_a in use."""
-        return self._divergence
+        """Deprecated (before 0.2): :attr:`discretisation`."""
+        warnings.warn('ClothSimulator.divergence is deprecated: it is .discretisation now',
+                      DeprecationWarning, stacklevel=2)
+        return self._discretisation
 
     @property
     def material(self) -> Material:
@@ -711,4 +727,4 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
 
     def __repr__(self) -> str:
         return (f'ClothSimulator({self.mesh!r}, {self._material}, dt={self._dt:g}, '
-                f'divergence={self._divergence!r})')
+                f'discretisation={self._discretisation!r})')

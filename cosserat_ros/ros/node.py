@@ -47,9 +47,9 @@ from .obstacles import ObstacleStreams
 from .pacing import Pacer
 from .obstacles import MESH_BUILD_PERIOD
 from .serve import main
-from .params import (check_choice, check_dt, check_names, check_value, COLORINGS, ConfigError,
-                     DECLARATIONS, MATERIAL_KEYS, OBSERVER_RUNTIME, pin_set,
-                     term_declarations, wind as checked_wind)
+from .params import (carry_renamed, check_choice, check_dt, check_names, check_value,
+                     COLORINGS, ConfigError, DECLARATIONS, MATERIAL_KEYS, OBSERVER_RUNTIME,
+                     pin_set, term_declarations, wind as checked_wind)
 from .status import solver_warning
 
 __all__ = ['ClothNode', 'ConfigError', 'main', 'pin_set', 'percentile', 'solver_warning']
@@ -84,6 +84,7 @@ class ClothNode(Node):
         check_names(p, self._parameter_overrides,
                     set(self.declarations) | set(self._parameters),
                     sys.argv if argv is None else argv, self.get_fully_qualified_name())
+        carry_renamed(p, self.get_logger().warning)        # a deprecated name, warned
         if self.get_parameter('use_sim_time').value:
             raise ConfigError(SIM_TIME_REASON)
         self.observe_only = bool(p['observe_only'])
@@ -139,14 +140,16 @@ class ClothNode(Node):
     def _simulator_built(self, p: dict, material: Material, t0: float) -> ClothSimulator:
         # with a cold compile cache, a second process compiles on the other core what the
         # start-up below needs after its step (cosserat_ros.core.warmup)
-        warmup.start(steps_tiled(self.mesh.n_vertices, p['divergence']), material.phi != 0.0)
+        warmup.start(steps_tiled(self.mesh.n_vertices, p['discretisation']),
+                     material.phi != 0.0)
         terms = {}
         for pname in self.declarations:
             if pname.startswith('terms.'):
                 _, term, coef = pname.split('.')
                 terms.setdefault(term, {})[coef] = p[pname]
         sim = ClothSimulator(self.mesh, material, dt=max(p['dt'], 1e-12),
-                             divergence=p['divergence'], check_dt=False, solver=p['solver'],
+                             discretisation=p['discretisation'], check_dt=False,
+                             solver=p['solver'],
                              terms=terms)
         if self.implicit:
             sim.solver_iterations = p['solver.iterations']

@@ -19,14 +19,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 from ..core.fabrics import PRESETS
 from ..core.mesh import GRID_PATTERNS
-from ..core.solvers.explicit import DIVERGENCE_METHODS
+from ..core.solvers.explicit import DISCRETISATIONS
 
 __all__ = ['PARAMETERS', 'DECLARATIONS', 'Param', 'check_value', 'ConfigError', 'COLORINGS',
            'PIN_SETS', 'MATERIAL_KEYS', 'AIR_KEYS', 'pin_set', 'wind', 'pinned_indices',
            'vec3', 'check_choice', 'check_dt',
            'OBSTACLE_KEYS', 'obstacle_geometry', 'HANDLE_KEYS', 'MIN_DT', 'OBSERVER_RUNTIME',
            'unknown_parameters', 'params_files', 'node_sections', 'group_names', 'check_names',
-           'term_declarations']
+           'term_declarations', 'RENAMED', 'carry_renamed']
 
 COLORINGS = ('energy', 'stretch', 'speed', 'none')
 PIN_SETS = ('none', 'corners', 'top_corners', 'top_edge', 'bottom_edge', 'left_edge',
@@ -139,8 +139,10 @@ DECLARATIONS: Dict[str, Param] = {
                      check=_vec3, apply='sim.gravity'),
     'pinned.indices': Param([-1], 'Pinned vertex indices ([-1]: none)'),
     'pinned.sets': Param(['top_corners'], 'Named pinned sets: ' + ', '.join(PIN_SETS)),
-    'divergence': Param('variational', 'Internal force discretisation: '
-                                       + ', '.join(DIVERGENCE_METHODS)),
+    'discretisation': Param('variational', 'Internal force discretisation: '
+                                           + ', '.join(DISCRETISATIONS)),
+    'divergence': Param('', 'Deprecated: the name of discretisation before 0.2 (taken, '
+                            'with a warning, until 0.3; empty: not set)'),
     'solver': Param('explicit', 'Time integrator: explicit (symplectic Euler, dt below the '
                                 'critical step) or implicit (backward Euler by Newton-CG, any '
                                 'dt up to 1 s, dissipative)'),
@@ -307,6 +309,24 @@ def obstacle_geometry(name: str, values: dict):
         raise ConfigError(f'obstacles.{name}.friction must be [mu] or [mu_static, '
                           f'mu_kinetic], got {friction}')
     return shape, friction[0] if len(friction) == 1 else tuple(friction), geometry
+
+
+#: parameters renamed, kept working for one release: old name -> new name
+RENAMED = {'divergence': 'discretisation'}
+
+
+def carry_renamed(p: Dict[str, object], warn: Callable[[str], None]) -> None:
+    """Each deprecated name of :data:`RENAMED` set in ``p`` (not empty): its value is
+    carried to the new name, with ``warn(reason)``; ConfigError if the new name was set
+    to something else too."""
+    for old, new in RENAMED.items():
+        if p.get(old, '') in ('', None):
+            continue
+        if p[new] != DECLARATIONS[new].default and p[new] != p[old]:
+            raise ConfigError(f'{old} (deprecated) and {new} disagree ({p[old]!r}, '
+                              f'{p[new]!r}): set {new} only')
+        warn(f'{old} is deprecated: it is {new} now ({old} goes in 0.3)')
+        p[new] = p[old]
 
 
 def check_choice(value, choices, name: str):

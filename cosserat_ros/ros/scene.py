@@ -12,7 +12,7 @@ needs no ROS graph, so that a batch worker builds exactly the scene a node would
 * :func:`build_mesh`, :func:`initial_material` and :func:`build_air` are the node's own
   start-up steps (the node calls them).
 * :func:`build_simulator` builds the whole simulator of a checked dict, with the node's
-  further checks (solver and divergence, the critical step, the pinned sets, the
+  further checks (solver and discretisation, the critical step, the pinned sets, the
   obstacles' geometry); every refusal is a :class:`.params.ConfigError` with one line.
 * :func:`params_file_tree` / :func:`read_params_file` write and read a params file
   (``cloth_node: ros__parameters: ...``) that ``cloth_node --params-file`` accepts.
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from typing import Dict, Iterable, NamedTuple, Optional
 
 import numpy as np
@@ -29,10 +30,10 @@ from ..core.air import Air
 from ..core.material import Material
 from ..core.mesh import GRID_PATTERNS, MeshError, grid_mesh, load_mesh
 from ..core.simulator import ClothSimulator
-from ..core.solvers.explicit import DIVERGENCE_METHODS
+from ..core.solvers.explicit import DISCRETISATIONS
 from .params import (AIR_KEYS, CAMERA_KEYS, HANDLE_KEYS, MATERIAL_KEYS, OBSTACLE_KEYS, PARAMETERS,
-                     ConfigError, check_choice, check_dt, group_names, obstacle_geometry,
-                     pinned_indices, vec3, wind)
+                     ConfigError, carry_renamed, check_choice, check_dt, group_names,
+                     obstacle_geometry, pinned_indices, vec3, wind)
 
 __all__ = ['check_parameters', 'build_mesh', 'initial_material', 'build_air',
            'Settings', 'checked_settings', 'apply_settings', 'build_simulator', 'resolve_path',
@@ -177,6 +178,7 @@ def check_parameters(given: Dict[str, object]) -> Dict[str, object]:
                 if isinstance(v, float) and not math.isfinite(v):
                     raise ConfigError(f'{name} must be finite, got {value!r}')
         out[name] = value
+    carry_renamed(out, lambda reason: warnings.warn(reason, FutureWarning, stacklevel=3))
     from .cameras import camera_specs
     camera_specs(out)                     # the cameras' sizes, fields of view and budget
     return out
@@ -224,11 +226,11 @@ def build_air(enabled: bool, coefficients: dict) -> Optional[Air]:
 
 
 def check_solver(p: dict) -> None:
-    """The solver and divergence choices and their combination, else ConfigError."""
-    check_choice(p['divergence'], DIVERGENCE_METHODS, 'divergence')
+    """The solver and discretisation choices and their combination, else ConfigError."""
+    check_choice(p['discretisation'], DISCRETISATIONS, 'discretisation')
     check_choice(p['solver'], ClothSimulator.SOLVERS, 'solver')
-    if p['solver'] == 'implicit' and p['divergence'] != 'variational':
-        raise ConfigError("solver: implicit needs divergence: variational (the seed's "
+    if p['solver'] == 'implicit' and p['discretisation'] != 'variational':
+        raise ConfigError("solver: implicit needs discretisation: variational (the seed's "
                           'covariant route has no energy to minimise)')
 
 
@@ -288,7 +290,7 @@ def build_simulator(p: dict, given: Iterable[str] = ()) -> ClothSimulator:
     check_solver(p)
     settings = checked_settings(p, mesh)
     check_dt(p['dt'])
-    sim = ClothSimulator(mesh, material, dt=p['dt'], divergence=p['divergence'],
+    sim = ClothSimulator(mesh, material, dt=p['dt'], discretisation=p['discretisation'],
                          check_dt=False, solver=p['solver'])
     if p['solver'] == 'implicit':
         sim.solver_iterations = p['solver.iterations']

@@ -123,13 +123,14 @@ def covariant_study():
         x[:, 2] = 1e-3 * np.exp(-(X[:, 0] ** 2 + X[:, 1] ** 2) / (2 * 0.15 ** 2))
         f = []
         for div in ('variational', 'covariant'):
-            sim = ClothSimulator(mesh, sc.plate_material(), divergence=div, check_dt=False)
+            sim = ClothSimulator(mesh, sc.plate_material(), discretisation=div,
+                                 check_dt=False)
             sim.set_positions(x)
             f.append(sim.internal_forces()[:, 2] / mesh.dual_areas)
         inner = np.abs(X[:, :2]).max(axis=1) < 0.3
         diff = np.abs(f[0] - f[1])[inner].max() / np.abs(f[0][inner]).max()
         try:
-            sc.plate_deflection(n, 'regular', divergence='covariant', dt_factor=0.5)
+            sc.plate_deflection(n, 'regular', discretisation='covariant', dt_factor=0.5)
             fate = 'reached a static state'
         except SimulationDiverged as exc:
             fate = f'diverged at t = {exc.time:.3f} s (step {exc.step})'
@@ -315,7 +316,7 @@ def main(argv=None):
     print('covariant ...', flush=True)
     md += ['## 6. The seed\'s covariant route against the variational one', '',
            'Interior force density of a smooth bump (|X|, |Y| < 0.3): relative difference '
-           'between `divergence="covariant"` (covariant derivatives of Eq. 14-15, Eq. 28, '
+           'between `discretisation="covariant"` (covariant derivatives of Eq. 14-15, Eq. 28, '
            'least-squares partial derivatives) and the exact energy gradient; and what the '
            'covariant route does on the simply supported plate.', '',
            '| N | interior difference | covariant SS plate |', '|---|---|---|']

@@ -3,7 +3,7 @@
 ``ExplicitSolver.step(n, state, control, coeff, dt, vmax2)`` advances a
 :class:`..state.State` n steps inside compiled code. The internal force is that of the
 three variational terms (``core/terms``), computed by the compiled step of ``fast/``
-(two passes, or tiles for large meshes), or, with ``divergence='covariant'``, the seed's
+(two passes, or tiles for large meshes), or, with ``discretisation='covariant'``, the seed's
 covariant route; either way each vertex is updated by ``update.advance_vertex``.
 
 :func:`reference_step` is the same update with the internal force summed from the term
@@ -30,16 +30,19 @@ from ..terms.registry import acting
 from ..state import Control, State
 from ..update import advance_vertex, contact_range
 
-__all__ = ['ExplicitSolver', 'reference_step', 'DIVERGENCE_METHODS', 'steps_tiled']
+__all__ = ['ExplicitSolver', 'reference_step', 'DISCRETISATIONS', 'DIVERGENCE_METHODS',
+           'steps_tiled']
 
 #: the discretisations of N^a|_a: the variational terms (default) or the seed's route
-DIVERGENCE_METHODS = ('variational', 'covariant')
+DISCRETISATIONS = ('variational', 'covariant')
+#: their name before 0.2 (deprecated: DISCRETISATIONS)
+DIVERGENCE_METHODS = DISCRETISATIONS
 
 
-def steps_tiled(n_vertices: int, divergence: str = 'variational') -> bool:
+def steps_tiled(n_vertices: int, discretisation: str = 'variational') -> bool:
     """Whether the step of a mesh of ``n_vertices`` runs tile by tile
     (``fast.step.run_tiled``): the variational route from ``FUSE_MIN_VERTICES`` on."""
-    return divergence == 'variational' and n_vertices >= FUSE_MIN_VERTICES
+    return discretisation == 'variational' and n_vertices >= FUSE_MIN_VERTICES
 
 
 @kernel(parallel=True)
@@ -99,22 +102,22 @@ class ExplicitSolver:
     Parameters
     ----------
     model : :class:`..model.Model`
-    divergence : {"variational", "covariant"}
+    discretisation : {"variational", "covariant"}
     simd : bool
         The vertex pass four vertices per SIMD vector (default), or one at a time (the
         same formulas; for tests and comparison).
     """
 
-    def __init__(self, model, divergence: str = 'variational', simd: bool = True):
-        if divergence not in DIVERGENCE_METHODS:
-            raise ValueError(f'divergence must be one of {DIVERGENCE_METHODS}, '
-                             f'got {divergence!r}')
+    def __init__(self, model, discretisation: str = 'variational', simd: bool = True):
+        if discretisation not in DISCRETISATIONS:
+            raise ValueError(f'discretisation must be one of {DISCRETISATIONS}, '
+                             f'got {discretisation!r}')
         self.model = model
-        self.divergence = divergence
+        self.discretisation = discretisation
         n, m = model.n_vertices, model.mesh.n_faces
         self.lanes = build_lanes(model, LANES if simd else 1)
         nch = -(-n // VERTEX_CHUNK)
-        self.tiled = steps_tiled(n, divergence)
+        self.tiled = steps_tiled(n, discretisation)
         parts = max(1, nb.get_num_threads())
         self.plan = build_plan(model, self.lanes, nch, TILE_VERTICES, parts, self.tiled)
         # the internal force alone runs the two-pass layout (every gradient in its slot)
@@ -135,7 +138,7 @@ class ExplicitSolver:
         self._force_state = State(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(2))
         self._force_control = Control.empty(n)
         self.cov_work: Optional[covariant.Work] = (covariant.Work.zeros(n)
-                                                   if divergence == 'covariant' else None)
+                                                   if discretisation == 'covariant' else None)
         #: the registered terms besides the built-ins, (term, its coefficient values)
         #: pairs (:mod:`..terms.registry`; the simulator's list, shared)
         self.extra: list = []
@@ -202,7 +205,7 @@ class ExplicitSolver:
 
     def _step(self, nsteps: int, state, control, coeff, dt: float, vmax2: float) -> int:
         m = self.model
-        if self.divergence == 'covariant':
+        if self.discretisation == 'covariant':
             return run_covariant(nsteps, state, control, coeff, m.faces, m.vertex_faces,
                                  m.jets, m.vertices, m.st_T, self.cov_work, self.work.part,
                                  self.work.force, dt, vmax2)
@@ -228,7 +231,7 @@ class ExplicitSolver:
         """The internal force at positions x (n,3) into out (n,3) [N]: the built-in
         terms' and the registered ones' (:attr:`extra`)."""
         m = self.model
-        if self.divergence == 'covariant':
+        if self.discretisation == 'covariant':
             covariant.covariant_forces(x, m.jets, m.vertices, m.st_T, coeff.zeta, coeff.xi,
                                        coeff.phi, self.cov_work, out)
             if acting(self.extra):

@@ -211,9 +211,9 @@ class ImplicitSolver:
 
     def __init__(self, model, explicit, iterations: int = 20, tolerance: float = 1e-3,
                  cg_iterations: int = 200):
-        if explicit.divergence != 'variational':
-            raise ValueError("the implicit solver needs divergence='variational' (the seed's "
-                             "covariant route has no energy to minimise)")
+        if explicit.discretisation != 'variational':
+            raise ValueError("the implicit solver needs discretisation='variational' (the "
+                             "seed's covariant route has no energy to minimise)")
         self.model = model
         self.explicit = explicit
         self.iterations = iterations
