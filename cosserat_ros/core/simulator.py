@@ -41,6 +41,7 @@ from .model import Model
 from .handles import HandleSet
 from .threads import ThreadTuner, run_tuned
 from .obstacles import ObstacleSet
+from .passes import run_calls, step_passes
 from .features import FeatureContact
 from .self_contact import DEFAULT_FRICTION, SelfCollision
 from .simulator_analysis import AnalysisMethods
@@ -172,6 +173,7 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
         self._features = FeatureContact(mesh)           # boxes' and cylinders' edges
         self._self_on = False
         self._self_friction = DEFAULT_FRICTION
+        self._passes = step_passes(self)                # around the solver: core/passes.py
         self._user_pins = np.zeros(n, dtype=bool)
         self._f_vertex = np.zeros((n, 3))
         self._force_field = np.zeros(3)
@@ -478,27 +480,18 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
         if n == 0:
             return
         backup = self.state.copy()
-        cap = self._obstacles.max_steps(self._dt, self.contact_thickness)
-        # what the calls of _step_in_calls move besides the state: the handles (their
-        # poses along their paths, the vertices that slipped out) and moving obstacles
-        handles = (self._handles.snapshot(), self.control.pin_velocity.copy()
-                   ) if len(self._handles) else None
-        poses = self._obstacles.poses() if cap else None
-        if self._self_on:
-            self._self.begin(self.state.x, self.state.v)
-        self._features.start()
-        boxes = self._features.present(self.control)   # their calls: _step_in_calls
+        passes = [p for p in self._passes if p.active()]
+        saved = [(p, p.snapshot()) for p in passes]
+        for p in self._passes:
+            p.start()
         try:
-            if cap == 0 and not len(self._handles) and not boxes and not self._self_on:
-                done = self._solve(n)
-            else:
-                done = self._step_in_calls(n, cap)
+            done = run_calls(self, passes, n) if passes else self._solve(n)
         except BaseException:
             # any other failure (or a Ctrl-C) inside a step: all as before the call
-            self._roll_back(backup, handles, poses)
+            self._roll_back(backup, saved)
             raise
         if done < n:
-            self._roll_back(backup, handles, poses)
+            self._roll_back(backup, saved)
             crit = self.critical_dt() if self._solver_kind == 'explicit' else math.inf
             if self._dt > crit:
                 hint = (f'dt = {self._dt:.3g} s is above the stable limit {crit:.3g} s; '
@@ -511,18 +504,13 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
         self._steps += n
         self._time += n * self._dt
 
-    def _roll_back(self, backup, handles, poses) -> None:
-        """Back to the start of a :meth:`step` that failed: the state, and the handles and
-        the obstacles' poses where the calls that succeeded had moved them."""
+    def _roll_back(self, backup, saved) -> None:
+        """Back to the start of a :meth:`step` that failed: the state, and every pass
+        (:mod:`.passes`) where the calls that succeeded had moved it."""
         self.state.assign(backup)
         self.solver.forget()
-        if handles is not None:
-            self._handles.restore_snapshot(handles[0])
-            self._sync_pins()
-            self.control.pin_velocity[:] = handles[1]
-        if poses is not None:
-            self._obstacles.restore(poses)
-            self._sync_obstacles()
+        for p, snap in saved:
+            p.restore(snap)
 
     @property
     def threads(self):
@@ -567,91 +555,6 @@ class ClothSimulator(SceneMethods, AnalysisMethods):
             return run(k)
         finally:
             numba.set_num_threads(was)
-
-    def _step_in_calls(self, n: int, cap: int) -> int:
-        """``n`` steps as several calls of the compiled step: moving obstacles take a
-        pose per call, each call short enough that they move at most a quarter of the
-        thickness (:mod:`.obstacles`); moving handles a prescribed velocity per call that
-        ends it on their path (:mod:`.handles`); break forces are checked after each
-        call. The corners of boxes (:mod:`.features`) and self-collision answer after
-        each step while they are near, and otherwise allow calls of several steps,
-        checked afterwards and stepped again one by one if they moved too far. Returns
-        the steps done (fewer: a divergence; :meth:`step` then puts obstacles and handles
-        back where the call began)."""
-        boxes = self._features.present(self.control)
-        own = self._self_on
-        start = self.state.copy() if boxes or own else None
-        overran = False
-        done = 0
-        while done < n:
-            k = n - done if cap == 0 else min(cap, n - done)
-            near = False
-            if boxes:
-                # a box's corners and edges answer every step once the cloth can reach
-                # them; until then calls that cannot reach them (:mod:`.features`), each
-                # checked afterwards and stepped again one by one if it could have
-                free = 0 if overran else self._features.free_steps(
-                    self.state.x, self.state.v, self.control, self._dt)
-                near = free < 2
-                k = 1 if near else min(k, free)
-                if near:
-                    self._features.begin(self.state.x, self.state.v)
-            if own:
-                # self-collision likewise: a response after every step while pairs are
-                # near, calls of several steps while none can come near
-                free = 0 if overran else self._self.free_steps(
-                    self.state.x, self.state.v, self.contact_thickness, self._dt)
-                k = min(k, max(1, free))
-            if start is not None and (k > 1 or (boxes and not near)):
-                start.assign(self.state)           # what an overrun call goes back to
-            overran = False
-            t = self._time + done * self._dt
-            if len(self._handles):
-                k = self._handles.plan(t, self._dt, k)
-            self._handles.prescribe(self.state.x, t, self._dt, k, self.control.pin_velocity)
-            got = self._solve(k)
-            if (got == k and boxes and not near
-                    and self._features.overran(start.x, self.state.x, self.control,
-                                               self._dt, k)):
-                self.state.assign(start)           # again, one step per call
-                overran = True
-                continue
-            if got == k and own and k > 1:
-                if self._self.overran(start.x, self.state.x, k, self._dt):
-                    self.state.assign(start)       # again, one step per call
-                    overran = True
-                    continue
-                self._self.begin(self.state.x, self.state.v)     # no pair came near
-            elif got == k and own:
-                removed = self._self.after_step(self.state, self.control, self.coefficients,
-                                                self._dt)
-                if not math.isfinite(removed):
-                    got = 0                # a non-finite response: the step diverged
-                else:
-                    self.state.acc[1] += removed
-            if got == k and near:
-                removed = self._features.after_step(self.state, self.control,
-                                                    self.coefficients, self._dt)
-                if not math.isfinite(removed):
-                    got = 0
-                else:
-                    self.state.acc[1] += removed
-                    if own:                # the next step starts where the box left it
-                        self._self.begin(self.state.x, self.state.v)
-            elif boxes:
-                self._features.steps += got        # steps without a feature's force
-            done += got
-            if got < k:
-                break
-            self._handles.settle(t + k * self._dt)
-            if len(self._handles) and len(self._handles.broken(self.control.reaction)):
-                self._sync_pins()
-            if cap:
-                self._obstacles.advance(k * self._dt)
-                self._sync_obstacles()
-        if not self._handles.moving(self._time + done * self._dt):
-            self.control.pin_velocity[:] = 0.0
-        return done
 
     # ------------------------------------------------------------------ terms
     @property

@@ -28,7 +28,7 @@ def coupled(zeta, xi, fraction=0.5):
 
 
 def cases():
-    """name -> (mesh, material, dt, divergence, set-up function)."""
+    """name -> (mesh, material, dt, discretisation, set-up function)."""
     out = {}
     base = dict(zeta=50.0, xi=2e-5, density=0.2, damping=0.1)
 
@@ -119,7 +119,7 @@ def rng_for(name):
 def simulator(name, spec):
     """The case's simulator, set up and not yet stepped."""
     mesh, mat, dt, div, setup = spec
-    sim = ClothSimulator(mesh, mat, dt=dt, divergence=div, check_dt=False)
+    sim = ClothSimulator(mesh, mat, dt=dt, discretisation=div, check_dt=False)
     setup(sim, rng_for(name))
     return sim
 
