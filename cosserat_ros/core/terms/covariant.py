@@ -14,7 +14,7 @@ It discretises the same balance law as the variational terms (interior force den
 converge to theirs) but is not the gradient of an energy: it has no energy and no Hessian
 block, its operator is non-symmetric with growing modes (pinned plates diverge at any dt,
 ``docs/validation.md``), and it needs every boundary vertex pinned (seed Sec. 6.4, 7). It is
-kept for comparison (``ClothSimulator(divergence='covariant')``), and replaces the three
+kept for comparison (``ClothSimulator(discretisation='covariant')``), and replaces the three
 variational terms when selected.
 """
 from __future__ import annotations
