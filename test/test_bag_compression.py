@@ -158,6 +158,7 @@ def test_compression_is_the_only_difference(zbag, messages, tmp_path):
         c.compression == 'zstd' for c in za.chunk_indexes)
 
 
+@pytest.mark.slow
 def test_render_draws_from_a_compressed_bag(zbag, tmp_path):
     from PIL import Image
     from cosserat_ros.tools.render import read_bag, render

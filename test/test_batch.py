@@ -405,6 +405,7 @@ def test_a_loaded_spec_loads_again_to_itself():
     assert load_spec(s) == s
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['table_drop', 'pick_place', 'flag_gusts'])
 def test_the_shipped_example_specs_load_and_their_first_episode_runs(name, tmp_path):
     """The examples of config/batch/, as installed (their ``base`` resolves beside

@@ -161,6 +161,7 @@ def _crumpled(sim, seed=3):
     ((-0.4, 0.3, -0.8), (0.0, 0.0, 0.02)),            # from below
     ((0.05, 0.0, 0.08), (0.3, 0.2, 0.0)),             # close, inside the fold's reach
 ])
+@pytest.mark.slow
 def test_crumpled_cloth_depth_equals_an_independent_ray_cast(eye, target):
     sim = _sim(14)
     x = _crumpled(sim)

@@ -306,6 +306,7 @@ def test_a_sphere_at_5_m_s_does_not_pass_through_a_hanging_cloth():
     assert sim.positions[:, 1].max() > 0.3
 
 
+@pytest.mark.slow
 @SOLVERS
 @pytest.mark.parametrize('mu, drags', [(1.0, True), (0.0, False)])
 def test_a_moving_box_drags_the_cloth_on_it_or_slips_under_it(mu, drags, solver):
@@ -812,6 +813,7 @@ def test_the_separating_axis_check_itself():
         assert _triangles_meeting_box(tri, faces, np.array(c), eye, [0.1] * 3) == meets, c
 
 
+@pytest.mark.slow
 @SOLVERS
 def test_a_box_smaller_than_the_cloths_triangles_does_not_poke_through(solver):
     """A coarse cloth (8 x 8 over 1 m: 12.5 cm edges) dropped onto a 12 cm box turned by
@@ -951,6 +953,7 @@ def test_the_cylinder_distance_check_itself():
         pytest.approx(0.5)                                   # beyond the rim: to the circle
 
 
+@pytest.mark.slow
 @SOLVERS
 def test_a_post_thinner_than_the_cloths_triangles_does_not_poke_through(solver):
     """A coarse cloth (8 x 8 over 1 m: 12.5 cm edges) dropped onto a post of 3 cm radius.
@@ -973,6 +976,7 @@ def test_a_post_thinner_than_the_cloths_triangles_does_not_poke_through(solver):
     assert sim.positions[:, 2].max() > center[2] + h            # on the post, not round it
 
 
+@pytest.mark.slow
 def test_a_cloth_over_a_round_table_and_the_weight_it_puts_on_it():
     """A 12 x 12 cloth of 1 m dropped onto a round table (a cylinder of radius 0.3 m and
     4 cm thick, damping 1.0 to settle in 5 s) hangs over its rim without the rim cutting into
@@ -1081,6 +1085,7 @@ def test_a_mesh_obstacles_sharp_edges_do_not_poke_through_a_coarse_cloth():
     assert sim.contact_state()['feature_pairs'] > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('moving', [False, True])
 def test_the_obstacles_a_group_of_vertices_leaves_out_change_nothing(moving):
     """The broad phase of a chunk of vertices (C.near_mask) is exact: resolve and push_out

@@ -116,6 +116,7 @@ def _plate(study, n, pattern='regular', support='simple'):
     return sc.plate_frequency(n, pattern)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_simply_supported_plate_deflection(pattern):
     r20, r40 = (_plate('deflection', n, pattern) for n in (20, 40))
@@ -124,6 +125,7 @@ def test_simply_supported_plate_deflection(pattern):
     assert r40['residual_speed'] < 1e-3 * r40['w']          # relaxed to a static state
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_simply_supported_plate_frequency(pattern):
     r20, r40 = (_plate('frequency', n, pattern) for n in (20, 40))
@@ -131,6 +133,7 @@ def test_simply_supported_plate_frequency(pattern):
     assert abs(r40['error']) < abs(r20['error'])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('study', ['deflection', 'frequency'])
 def test_plate_convergence_order(study):
     """The fitted order of the simply supported plate on the regular grid, as scikit-fem's
@@ -145,6 +148,7 @@ def test_plate_convergence_order(study):
     assert 1.5 < order < 2.5, (errors, order)
 
 
+@pytest.mark.slow
 def test_clamped_plate_deflection():
     r20, r40 = (sc.plate_deflection(n, 'regular', 'clamped') for n in (20, 40))
     assert abs(r40['error']) < 0.05, r40
@@ -160,6 +164,7 @@ def test_cantilever_free_edges(pattern):
     assert r['w_plate'] <= r['w'] <= r['w_beam'], r
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_hanging_cloth_settles(pattern):
     mat = Material(zeta=50.0, xi=2e-5, phi=1e-6, density=0.2, damping=1.0)
@@ -195,6 +200,7 @@ def _bump(mesh, amp):
     return x
 
 
+@pytest.mark.slow
 def test_undamped_energy_is_conserved_at_seed_dt():
     mesh = grid_mesh(20, 20)
     mat = Material(zeta=50.0, xi=1e-3, phi=1e-4, density=0.2)
@@ -270,6 +276,7 @@ def test_energy_report_matches_its_definition():
     assert e['total'] == pytest.approx(e['kinetic'] + e['elastic'] + e['gravity'], rel=1e-12)
 
 
+@pytest.mark.slow
 def test_damped_cloth_returns_to_rest():
     # seed Sec. 6.5 / Fig. 6: stretch by a central force, release, come back
     mesh = grid_mesh(16, 16, pattern='alternating')
@@ -287,6 +294,7 @@ def test_damped_cloth_returns_to_rest():
     assert np.abs(sim.positions - mesh.vertices).max() < 1e-3 * peak
 
 
+@pytest.mark.slow
 def test_seed_figure7_materials_sag_to_steady_states():
     sags = []
     for zeta, xi, phi in ((1e-1, 1e-4, 1e-6), (1e-2, 1e-5, 1e-7)):
@@ -457,6 +465,7 @@ def test_pins_forces_and_state_api():
     assert sim.material.zeta == 30.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', ['regular', 'irregular'])
 def test_critical_dt_of_another_material_updates_the_first_estimate(pattern):
     # a run-time material change (the node's parameter path) must not run a new 60-step

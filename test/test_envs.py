@@ -47,6 +47,7 @@ def test_the_three_ids_are_registered_on_import():
 @pytest.mark.parametrize('action_mode, obs_mode', [
     ('pick_place', 'state'), ('handle_delta', 'state'), ('handle_delta', 'keypoints'),
     ('handle_delta', 'depth'), ('handle_delta', 'rgbd')])
+@pytest.mark.slow
 def test_gymnasium_s_checker_passes(env_id, action_mode, obs_mode):
     env = gym.make(env_id, action_mode=action_mode, obs_mode=obs_mode,
                    render_mode='rgb_array', **SMALL)
@@ -94,6 +95,7 @@ def _rollout(env_id, seed, actions, **options):
 
 @pytest.mark.parametrize('env_id, mode', [('cosserat_ros/ClothFlatten-v0', 'pick_place'),
                                           ('cosserat_ros/ClothDrop-v0', 'handle_delta')])
+@pytest.mark.slow
 def test_the_same_seed_and_actions_give_the_same_bits_and_another_seed_does_not(env_id,
                                                                                 mode):
     rng = np.random.default_rng(5)
@@ -145,6 +147,7 @@ def test_fold_distance_pairs_each_vertex_with_its_mirror_by_coordinates():
 
 
 # ---------------------------------------------------------------- experts
+@pytest.mark.slow
 def test_the_scripted_fold_succeeds_on_ten_seeds_and_a_random_agent_does_not():
     expert = evaluate('fold', fold_expert, range(10), 1)
     assert all(ok for _, ok, _ in expert), expert
@@ -153,6 +156,7 @@ def test_the_scripted_fold_succeeds_on_ten_seeds_and_a_random_agent_does_not():
     assert max(d for d, _, _ in expert) < min(d for d, _, _ in random)
 
 
+@pytest.mark.slow
 def test_the_scripted_flatten_often_covers_over_eighty_percent_within_ten_actions():
     """The issue asks for > 0.8 on every one of 10 seeds; this expert does not do that.
     Measured: 7 of 10 above 0.8 (mean 0.87) with kernels compiled afresh, 5 of 10 (mean

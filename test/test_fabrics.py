@@ -117,6 +117,7 @@ def _elastica_picard(lam, n=4001, iterations=400):
     return math.atan2(z, x)
 
 
+@pytest.mark.slow
 def test_the_heavy_elastica_against_an_independent_solution_and_its_small_limit():
     for lam in (2.0, 8.0, 14.0):
         assert sc.elastica_chord_angle(lam) == pytest.approx(_elastica_picard(lam),
@@ -132,6 +133,7 @@ def test_the_heavy_elastica_against_an_independent_solution_and_its_small_limit(
     assert lam / peirce - 1 > 0.04
 
 
+@pytest.mark.slow
 def test_astm_d1388_on_the_simulator_recovers_the_flexural_rigidity():
     """A 25 mm strip of jersey, 40 segments over the overhang, run to rest: G from the
     measured chord angle within 5% of the material's 6 xi."""

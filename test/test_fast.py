@@ -239,6 +239,7 @@ def _run(sim, one_region, nsteps, nr=None):
     return (fast_step.run_two_pass_coupled if coupled else fast_step.run_two_pass)(*args)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('phi', [0.0, 1e-3])
 def test_the_step_is_the_same_to_the_bit_however_the_threads_share_it(phi):
     # the vertex pass and the update in 1, 2, 3 or 7 ranges (more than the threads: the
@@ -435,6 +436,7 @@ def _contributors(sim):
     return np.concatenate([q[0] for q in pairs]), np.concatenate([q[1] for q in pairs])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['irregular', 'icosphere'])
 @pytest.mark.parametrize('parts, phi', [(2, 0.0), (3, 0.0), (2, 1e-3)])
 def test_tiled_step_gives_the_same_trajectory_to_the_bit(name, parts, phi):
@@ -485,6 +487,7 @@ def test_tiled_plan_updates_each_vertex_once_after_everything_that_touches_it(na
     assert np.all(chunk[inner] < p.tile_ch[t + 1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern, most', [('regular', 0.1), ('irregular', 0.2)])
 def test_the_tiled_step_leaves_a_small_seam_on_a_locally_numbered_sheet(pattern, most):
     # with the default tiles and a part per thread, on a sheet numbered row by row: the
@@ -500,6 +503,7 @@ def test_the_tiled_step_leaves_a_small_seam_on_a_locally_numbered_sheet(pattern,
     assert (p.gl_ptr[-1] - p.gl_ptr[-2]) < most * sim.n_vertices
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['regular', 'irregular'])
 @pytest.mark.parametrize('tile, side', [(16, 41), (256, 81)])
 def test_ring_slots_hold_every_gradient_until_its_last_reader(name, tile, side):
@@ -542,6 +546,7 @@ def test_ring_slots_hold_every_gradient_until_its_last_reader(name, tile, side):
         assert p.fc_slot.max() < 0.7 * sim.mesh.n_faces
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('phi', [0.0, 1e-3])
 def test_large_meshes_step_tiled_whatever_the_material(monkeypatch, phi):
     calls = []
@@ -565,6 +570,7 @@ def test_large_meshes_step_tiled_whatever_the_material(monkeypatch, phi):
         assert steps_tiled(sim.mesh.n_vertices) == (expect == 'run_tiled')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['regular', 'alternating', 'irregular', 'icosphere'])
 def test_the_vertex_pass_reads_each_face_rest_shape_from_a_table_of_the_distinct_ones(name):
     # the faces' corners in chunk order (uint32) and a row per face in a table of the
@@ -585,6 +591,7 @@ def test_the_vertex_pass_reads_each_face_rest_shape_from_a_table_of_the_distinct
         assert len(rows) <= 64
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('phi', [0.0, 1e-3])
 def test_a_tiled_simulator_computes_its_force_outside_the_step_from_its_own_slots(phi):
     # its force outside the step (critical dt, internal_forces) runs the two-pass vertex

@@ -68,6 +68,7 @@ def observed_order(hs, errs):
     return np.polyfit(np.log(hs), np.log(errs), 1)[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_quadratic_surface_is_exact(pattern):
     # every vertex, boundary included: the jet reproduces quadratics exactly
@@ -76,6 +77,7 @@ def test_quadratic_surface_is_exact(pattern):
         assert max(errs) < 1e-9, (n, errs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('surface', [wave, bump], ids=['wave', 'bump'])
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_smooth_surfaces_beat_seed_and_converge(pattern, surface):
@@ -91,6 +93,7 @@ def test_smooth_surfaces_beat_seed_and_converge(pattern, surface):
         assert observed_order(hs, e) > order, (name, e, observed_order(hs, e))
 
 
+@pytest.mark.slow
 def test_seed_estimator_does_not_converge_but_jet_does():
     seed_err, jet_err = [], []
     for n in (20, 40, 80):
@@ -124,6 +127,7 @@ def _covariant_n3_reference(surface, X, Y, xi, step=1e-5):
             + np.einsum('naal,nbl->nb', gam, Mv))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_covariant_derivative_within_ten_percent(pattern):
     # seed Sec. 6.3: covariant derivatives within 10% at 40x40
@@ -192,6 +196,7 @@ def test_flat_chart_is_global_xy():
     assert np.allclose(g.rest_metric, np.eye(2), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_sphere_curvatures():
     R = 0.7
     ico = trimesh.creation.icosphere(subdivisions=5, radius=R)
@@ -203,6 +208,7 @@ def test_sphere_curvatures():
     assert np.allclose(g.normal, ico.vertices / R, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_agrees_with_trimesh_on_a_torus():
     # independent estimator: trimesh's angle defect (Gauss-Bonnet) over the dual area
     torus = trimesh.creation.torus(major_radius=0.5, minor_radius=0.2, major_sections=160,

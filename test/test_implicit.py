@@ -71,6 +71,7 @@ def test_plates_match_the_explicit_solver(support):
     assert im['dt'] > 10 * ex['dt']                      # a twentieth of the period
 
 
+@pytest.mark.slow
 def test_stretch_at_one_sixtieth_is_the_converged_statics():
     # 1 m cloth, E h = 2e3 N/m, two corners: at dt = 1/60 s and the default iterations,
     # the largest edge strain at rest is within 10% of the converged static solution's,
@@ -88,6 +89,7 @@ def test_stretch_at_one_sixtieth_is_the_converged_statics():
     assert abs(got - want) <= 0.1 * want, (got, want)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pattern', PATTERNS)
 def test_stiff_fabric_is_stable_at_one_sixtieth(pattern):
     mat = fabric(eh=5e3, d=1e-3, damping=0.1)
@@ -130,6 +132,7 @@ def test_release_from_a_thirty_degree_fold():
     assert last < e0
 
 
+@pytest.mark.slow
 def test_plate_frequency_at_a_twentieth_of_the_period():
     # a pinned-edge square membrane under tension? No: the cantilever-free plate's first
     # mode. Use the explicit solver's measured period as the reference (make validate
@@ -227,6 +230,7 @@ def test_a_steady_acceleration_is_carried_on_into_the_next_step():
     np.testing.assert_allclose(sim.state.v[:, 2], -3 * 9.81 * dt, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_a_settling_sheet_is_converged_to_its_load_not_to_its_last_imbalance():
     """Issue 6's sheet (E h 500 N/m, D 1e-4 N m, 0.1 kg/m^2, edge pinned), 24 x 24,
     falling from flat and settling at 1/60 s. The tolerance's scale per vertex is the
@@ -340,6 +344,7 @@ def swing(n, steps):
     return np.array(its), np.array(neg), edge_strain(sim).max()
 
 
+@pytest.mark.slow
 def test_a_buckling_swing_is_solved_by_projected_newton(monkeypatch):
     """The membrane's Hessian is indefinite where a triangle is compressed; CG runs on it
     with the stress's negative part clamped (implicit.py, ``add_compression_product``), so
@@ -368,6 +373,7 @@ def mean_heights(n, iterations, steps=30, every=6):
     return np.array(z), np.array(its)
 
 
+@pytest.mark.slow
 def test_one_iteration_is_linearised_backward_euler():
     """solver_iterations = 1: one Newton step a step, its linear system solved to 0.1
     (implicit.py, LINEARIZED_FORCING). The swing's mean height follows the converged

@@ -350,6 +350,7 @@ def test_wind_blows_the_cloth_in_air_bad_wind_is_refused_and_it_lapses(h):
     assert h.node.diverged is None
 
 
+@pytest.mark.slow
 def test_implicit_solver_runs_at_frame_rate_steps_and_reports_its_solve():
     """solver: implicit accepts dt = 1/30 s (far above the critical step), reports each
     solve in /diagnostics, takes solver.iterations / solver.tolerance at run time and
@@ -522,6 +523,7 @@ def test_every_shipped_config_is_tested():
             'drape.yaml', 'fold.yaml', 'denim.yaml'} <= set(SHIPPED)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('config', SHIPPED)
 def test_shipped_configs_start_and_step(config):
     from ament_index_python.packages import get_package_share_directory
@@ -835,6 +837,7 @@ def test_marker_obstacles_stop_at_a_reset_and_mesh_markers_are_capped(monkeypatc
         h.close()
 
 
+@pytest.mark.slow
 def test_table_config_reports_the_weight_on_the_table():
     """config/table.yaml: the cloth dropped on the table comes to rest on it; the
     wrench on ~/contact/table is then its weight (within 1%)."""

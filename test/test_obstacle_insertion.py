@@ -87,6 +87,7 @@ def _distances(sim, oid):
     return sim._obstacles.distances(oid, sim.positions)
 
 
+@pytest.mark.slow
 @SOLVERS
 def test_ground_added_under_a_hanging_cloth_leaves_it_hanging_through(solver):
     """The issue's scene: a ground added at z = 0 under a cloth hanging below it. Every

@@ -20,6 +20,7 @@ DATA = np.load(os.path.join(HERE, 'reference_trajectories.npz'))
 CASES = ref.cases()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(CASES))
 def test_500_steps_match_the_core_before_the_restructure(name):
     sim = ref.simulator(name, CASES[name])

@@ -74,6 +74,7 @@ def test_segment_segment_is_the_closest_pair_of_points():
         assert d @ d == pytest.approx(dd, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_candidates_are_every_pair_within_the_radius():
     """The spatial hash finds exactly the brute force's vertex-triangle and edge-edge
     pairs within the radius (incident pairs left out) on a cloth folded onto itself."""
@@ -308,6 +309,7 @@ def test_a_call_that_moves_further_than_its_room_is_an_overrun():
 
 # ---------------------------------------------------------------- scenes
 
+@pytest.mark.slow
 @pytest.mark.parametrize('solver', ['explicit', 'implicit'])
 def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself(solver):
     """A 0.5 m cloth, nearly upright, its lower edge 0.5 m above the ground, falls and
@@ -352,6 +354,7 @@ def test_a_dropped_cloth_crumples_onto_the_ground_without_passing_through_itself
     assert sim.positions[:, 2].min() > 0.9 * sim.contact_thickness
 
 
+@pytest.mark.slow
 def test_a_cloth_draped_over_a_sphere_lets_its_edges_fall_onto_each_other():
     """A 0.9 m cloth dropped from 1 m onto a sphere of radius 0.15 m: its sides hang and
     fold into one another, never through."""
@@ -384,6 +387,7 @@ def test_the_drape_steps_on_from_the_state_where_a_crumpled_stencil_blew_it_up()
         assert np.linalg.norm(sim.velocities, axis=1).max() < 5.0     # free fall from 1 m: 4.4
 
 
+@pytest.mark.slow
 def test_two_handles_fold_a_cloth_in_half_on_the_ground():
     """Two handles lift one edge of a cloth lying on the ground, carry it over in an
     arc, lay it on the other half and let go: the halves end on top of each other."""
@@ -413,6 +417,7 @@ def test_two_handles_fold_a_cloth_in_half_on_the_ground():
     assert x[lifted, 2].mean() > x[~lifted, 2].mean() + th
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('mu', [0.0, 0.8])
 def test_an_upper_layer_pulled_over_a_lower_one_drags_it_only_with_friction(mu):
     """Two equal 0.3 m sheets, one lying on the other on a ground of mu = 0.3; a handle
@@ -452,6 +457,7 @@ def test_an_upper_layer_pulled_over_a_lower_one_drags_it_only_with_friction(mu):
         assert moved > 0.02
 
 
+@pytest.mark.slow
 def test_a_strip_twisted_by_two_handles_touches_itself_without_crossing():
     """A 0.6 x 0.06 m strip held at both ends, one end turned by 360 degrees about the
     strip's axis while the ends come 0.4 m apart: the twisted strip sags and coils onto

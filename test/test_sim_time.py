@@ -143,6 +143,7 @@ def test_refused_wind_is_on_the_rejections_topic():
         h.close()
 
 
+@pytest.mark.slow
 def test_the_node_never_runs_ahead_of_the_real_time_factor_asked_for():
     """real_time_factor 0.25: over 2 s of wall time the sim advances at most a quarter of
     it (and a tick's share more); an upper bound, which a busy host cannot break."""

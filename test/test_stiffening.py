@@ -45,6 +45,7 @@ def test_gradient_and_blocks_match_finite_differences(pattern):
     assert np.all(np.linalg.eigvalsh(blocks) >= -1e-9 * np.abs(blocks).max())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('stretch', [1.01, 1.05, 1.10, 1.20])
 def test_a_stretched_strip_pulls_its_pins_with_the_stated_law(stretch):
     """A 0.2 m x 0.05 m strip held at both ends at ``stretch`` times its length, a soft

@@ -49,6 +49,7 @@ def _assert_gradient_is_the_central_difference(t, model, coeff, x, h=1e-6):
     assert np.abs(g - fd).max() <= 1e-6 * np.abs(g).max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('term', sorted(TERMS))
 @pytest.mark.parametrize('name', ['regular', 'irregular', 'icosphere'])
 def test_gradient_is_the_central_difference_of_the_energy(term, name):
@@ -313,6 +314,7 @@ def _plate_deflection(n, pattern):
     return model, w, 6.0 * MAT.xi * a ** 2 * np.pi ** 4 / 2.0
 
 
+@pytest.mark.slow
 def test_plate_matrix_is_the_kirchhoff_plate_energy_with_order_two():
     """``bending.plate_matrix`` (the implicit solver's preconditioner for the bending):
     ``D/2 w^T K w`` against the plate's energy, converging as h^2 on the regular grid and
