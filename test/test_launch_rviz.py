@@ -98,28 +98,31 @@ EXTRAS = {'llvmlite', 'mujoco', 'foxglove', 'mcap', 'mcap_ros2', 'google', 'webs
           'ray', 'pyarrow', 'gymnasium'}
 
 
+def _imported_packages() -> set:
+    """The top-level packages the installed code imports, outside the standard library
+    (of this Python and of newer ones) and the package itself."""
+    import sys
+    code = os.path.dirname(os.path.abspath(__import__('cosserat_ros').__file__))
+    imported = set()
+    for dirpath, _, files in os.walk(code):
+        for f in files:
+            if f.endswith('.py'):
+                for n in ast.walk(ast.parse(open(os.path.join(dirpath, f)).read())):
+                    if isinstance(n, ast.Import):
+                        imported |= {a.name.split('.')[0] for a in n.names}
+                    elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+                        imported.add(n.module.split('.')[0])
+    return imported - set(sys.stdlib_module_names) - NEWER_STDLIB - {'cosserat_ros'}
+
+
 def test_every_package_the_code_imports_or_launches_is_a_run_dependency():
     """A ROS install resolves package.xml with rosdep: each ROS package the installed code
     imports (rclpy, the message and service packages, rcl_interfaces for the parameter
     types, ament_index_python) and each Python library must be an exec_depend, and so
     must rviz2, which the launch files start with rviz:=true."""
-    import sys
     root = ET.parse(os.path.join(SHARE, 'package.xml')).getroot()
     deps = {e.text for e in root.iter() if e.tag in ('exec_depend', 'depend')}
-    code = os.path.dirname(os.path.dirname(os.path.abspath(
-        __import__('cosserat_ros').__file__)))
-    imported = set()
-    for dirpath, _, files in os.walk(os.path.join(code, 'cosserat_ros')):
-        for f in files:
-            if f.endswith('.py'):
-                tree = ast.parse(open(os.path.join(dirpath, f)).read())
-                for n in ast.walk(tree):
-                    if isinstance(n, ast.Import):
-                        imported |= {a.name.split('.')[0] for a in n.names}
-                    elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
-                        imported.add(n.module.split('.')[0])
-    third = (imported - set(sys.stdlib_module_names) - NEWER_STDLIB - {'cosserat_ros'}
-             - EXTRAS)
+    third = _imported_packages() - EXTRAS
     assert {'rclpy', 'numpy', 'rcl_interfaces'} <= third                # the walk works
     missing = {PYTHON_KEYS.get(m, m) for m in third} - deps
     assert not missing, f'imported but not in package.xml: {sorted(missing)}'
@@ -139,26 +142,16 @@ def test_the_installed_distribution_requires_every_library_it_imports():
     install_requires, or in the extra of the optional part that imports it."""
     import importlib.metadata
     import re
-    import sys
     requires = importlib.metadata.requires('cosserat_ros')
     runtime, extras = set(), set()
     for r in requires:
         name = re.match(r'[A-Za-z0-9_.-]+', r).group(0).lower()
         (extras if 'extra ==' in r else runtime).add(name)
-    code = os.path.dirname(os.path.abspath(__import__('cosserat_ros').__file__))
-    imported = set()
-    for dirpath, _, files in os.walk(code):
-        for f in files:
-            if f.endswith('.py'):
-                for n in ast.walk(ast.parse(open(os.path.join(dirpath, f)).read())):
-                    if isinstance(n, ast.Import):
-                        imported |= {a.name.split('.')[0] for a in n.names}
-                    elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
-                        imported.add(n.module.split('.')[0])
+    imported = _imported_packages()
     ros = {m for m in imported if m in ('rclpy', 'rcl_interfaces', 'ament_index_python',
                                          'builtin_interfaces', 'rosgraph_msgs')
            or m.endswith(('_msgs', '_srvs'))}
-    third = imported - set(sys.stdlib_module_names) - NEWER_STDLIB - {'cosserat_ros'} - ros
+    third = imported - ros
     assert {'numpy', 'numba', 'ray'} <= third                          # the walk works
     dists = {DISTRIBUTIONS.get(m, m).lower() for m in third}
     assert not dists - runtime - extras, f'imported, not required: {dists - runtime - extras}'
