@@ -25,7 +25,6 @@ def cloth():
 class Probe(StepPass):
     """Calls of at most ``most`` steps; ``overrun_once``: says the first call overran;
     ``blow_at``: answers NaN after that call; its snapshot is a counter it restores."""
-    answers = True
 
     def __init__(self, sim, most, overrun_once=False, blow_at=None):
         super().__init__(sim)

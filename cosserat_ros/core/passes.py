@@ -45,9 +45,6 @@ __all__ = ['StepPass', 'ObstacleMotion', 'FeaturePass', 'SelfPass', 'HandlePass'
 class StepPass:
     """A pass of the step pipeline (module docstring): the defaults do nothing."""
 
-    #: whether ``answer`` can act (the pipeline skips the others)
-    answers = False
-
     def __init__(self, sim):
         self.sim = sim
 
@@ -116,8 +113,6 @@ class FeaturePass(StepPass):
     response after each step while the cloth can reach them; until then calls that
     cannot, each checked afterwards (``overran``)."""
 
-    answers = True
-
     def active(self) -> bool:
         return self.sim._features.present(self.sim.control)
 
@@ -161,8 +156,6 @@ class SelfPass(StepPass):
     are near, calls of several steps while none can come near, each checked afterwards
     (``overran``). Its candidate list is a cache of the state, checked every step: a
     failed step leaves it as it is."""
-
-    answers = True
 
     def active(self) -> bool:
         return self.sim._self_on
@@ -241,7 +234,7 @@ def run_calls(sim, passes, n: int) -> int:
     each (module docstring); the steps done (fewer: a divergence, which the caller
     rolls back)."""
     start = None                                    # what an overrun call goes back to
-    answering = [p for p in reversed(passes) if p.answers]
+    answering = passes[::-1]
     overran = False
     done = 0
     while done < n:
