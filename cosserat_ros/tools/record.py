@@ -294,10 +294,8 @@ def scan_mcap(path: Path, compressions: Optional[set] = None,
     if compressions is not None or topics is not None:   # headers first, none decompressed
         try:
             for op, buf, o, end in records(data, 8, len(data)):
-                if op in (0x03, 0x04) and topics is not None:
-                    handle(op, buf, o, end)
-                    if op == 0x04:
-                        topics.append(channels[struct.unpack_from('<H', buf, o)[0]])
+                if op in (0x03, 0x04):
+                    handle(op, buf, o, end)         # the channels, in file order
                 elif op == 0x06 and compressions is not None:
                     o += 8 + 8 + 8 + 4
                     comp, o = string(buf, o)
@@ -306,6 +304,8 @@ def scan_mcap(path: Path, compressions: Optional[set] = None,
                         compressions.add(comp)
         except (struct.error, UnicodeDecodeError, ValueError):
             pass
+        if topics is not None:
+            topics.extend(channels.values())
     try:
         yield from messages()
     except (struct.error, UnicodeDecodeError, ValueError):
