@@ -155,6 +155,23 @@ def test_one_worker_and_two_give_the_same_bytes_and_one_line_each(raytmp, tmp_pa
     assert table.num_rows == 4 and 'metric_coverage' in table.column_names
 
 
+
+def test_an_environment_s_episodes_run_on_ray_as_they_do_alone(raytmp, tmp_path):
+    """An ``env`` spec (a Gymnasium task and an agent) on two workers: every episode once,
+    each the same bytes and metrics as the same episode run in this process."""
+    pytest.importorskip('gymnasium')
+    s = load_spec({'batch': 1, 'seed': 2, 'episodes': 3,
+                   'env': {'id': 'cosserat_ros/ClothFold-v0', 'agent': 'random',
+                           'options': {'resolution': 6, 'horizon': 2}}})
+    res = run_batch(s, tmp_path / 'ray', workers=2)
+    assert (res['ok'], res['failed']) == (3, 0)
+    lines = _every_episode_ok_once(tmp_path / 'ray', 3)
+    ep = plan(s)[1]
+    alone = run_episode(ep, tmp_path / 'alone')
+    line = next(ln for ln in lines if ln['id'] == ep.id)
+    assert line['bag_sha256'] == alone['bag_sha256']
+    assert line['metrics'] == alone['metrics'] and line['metrics']['actions'] == 2
+
 #: a sitecustomize (Python imports it at every start of an interpreter that has its
 #: directory on the path): a Ray worker process (default_worker.py) notes its pid in that
 #: directory, then sleeps $COSSERAT_TEST_SLOW_START seconds before it runs anything, as

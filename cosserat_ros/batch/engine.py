@@ -160,6 +160,13 @@ def _ready_worker(episode: dict) -> None:
             resolve_script(policy['target'])
         except Exception:                          # noqa: BLE001 (the episode says why)
             pass
+    if policy.get('kind') == 'env':                # build and reset the environment
+        try:
+            from .env_episode import make_env
+            make_env(policy).reset(seed=0)
+        except Exception:                          # noqa: BLE001 (the episode says why)
+            pass
+        return
     tmp = Path(tempfile.mkdtemp(prefix='cosserat_ready_'))
     try:
         dt = float(check_parameters(episode['params'])['dt'])

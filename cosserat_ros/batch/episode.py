@@ -17,6 +17,8 @@ What a run writes, under ``OUT/episodes/<id>/``:
 * ``params.yaml`` -- the episode's node parameters, a file ``cloth_node --params-file``
   takes (it reproduces the scene; the initial placement and the policy are in
   ``result.json``);
+* ``env.yaml`` instead, for an environment's episode (``env`` in the spec:
+  :mod:`.env_episode`): the id, options, agent and seed that reproduce it;
 * ``result.json`` -- the manifest line of the episode (:func:`run_episode`'s result).
 
 The directory is written under ``OUT/.tmp/`` and renamed into ``episodes/`` whole (a rename
@@ -398,6 +400,11 @@ def _simulate(episode: Episode, bag_dir: Path) -> dict:
     from ..core.simulator import SimulationDiverged
     from ..ros.params import ConfigError
     from ..ros.scene import build_simulator, check_parameters
+    if episode.policy['kind'] == 'env':
+        from .env_episode import simulate_env
+        p = check_parameters({})        # the node's defaults: the frame and the colouring
+        return simulate_env(episode, bag_dir,
+                            lambda path, sim, names: _Recorder(path, sim, p, names, False, {}))
     try:
         p = check_parameters(episode.params)
         sim = build_simulator(p, given=episode.params)
@@ -593,8 +600,13 @@ def run_episode(episode, out_dir) -> dict:
     t0 = time.perf_counter()
     result = result_line(episode)
     try:
-        with open(staged / 'params.yaml', 'w') as fh:
-            yaml.safe_dump(params_file_tree(episode.params), fh, sort_keys=True)
+        if episode.policy['kind'] == 'env':     # what reproduces it: make, reset, agent
+            with open(staged / 'env.yaml', 'w') as fh:
+                yaml.safe_dump({k: v for k, v in episode.policy.items() if k != 'kind'}
+                               | {'seed': episode.seed}, fh, sort_keys=True)
+        else:
+            with open(staged / 'params.yaml', 'w') as fh:
+                yaml.safe_dump(params_file_tree(episode.params), fh, sort_keys=True)
         try:
             metrics, sim_time = _simulate(episode, staged / 'bag')
         except (EpisodeFailed, SimulationDiverged) as exc:

@@ -34,6 +34,10 @@ the simulator itself (``sim.step`` records at the spec's rates and stops at the 
 end; whatever it leaves of the duration is stepped after it returns; see
 :mod:`.episode`).
 
+A spec with ``env: {id, options, agent}`` instead of the scene, its start, policy,
+duration and recording runs episodes of a Gymnasium environment of
+:mod:`cosserat_ros.envs` driven by an agent (:mod:`.env_episode`).
+
 :func:`plan` resolves every draw up front: episode ``i``'s values come from
 ``numpy.random.default_rng(SeedSequence([seed, i]))`` alone, so the plan of a spec does not
 depend on how many episodes it has, in which order they run or where.
@@ -64,7 +68,7 @@ MAX_DURATION = 3600.0
 MAX_RATE = 1000.0
 
 TOP_KEYS = ('batch', 'seed', 'episodes', 'duration', 'base', 'scene', 'randomize', 'init',
-            'policy', 'record', 'name')
+            'policy', 'record', 'name', 'env')
 RECORD_KEYS = {'mesh_hz': 10.0, 'points_hz': 0.0}
 INIT_KINDS = {'flat': {'height': 0.0},
               'drop': {'height': 0.2, 'tilt_deg': 0.0, 'azimuth_deg': None},
@@ -228,9 +232,16 @@ def load_spec(path_or_dict) -> dict:
     if raw.get('batch') != SCHEMA:
         raise SpecError(f'batch: the schema version must be {SCHEMA}, got '
                         f'{raw.get("batch")!r}')
-    for key in ('seed', 'episodes', 'duration'):
+    for key in ('seed', 'episodes') if 'env' in raw else ('seed', 'episodes', 'duration'):
         if key not in raw:
             raise SpecError(f'{key}: missing')
+    if 'env' in raw:                   # an environment's episodes: .env_episode
+        from .env_episode import load_env
+        return {'batch': SCHEMA, 'name': str(raw.get('name', '')),
+                'seed': _number('seed', raw['seed'], 0, 2 ** 63 - 1, integer=True),
+                'episodes': _number('episodes', raw['episodes'], 1, MAX_EPISODES,
+                                    integer=True),
+                'env': load_env(raw, raw['env'])}
     spec = {'batch': SCHEMA, 'name': str(raw.get('name', '')),
             'seed': _number('seed', raw['seed'], 0, 2 ** 63 - 1, integer=True),
             'episodes': _number('episodes', raw['episodes'], 1, MAX_EPISODES, integer=True),
@@ -301,19 +312,19 @@ def _load_policy(v) -> dict:
     return out
 
 
-def resolve_script(target: str):
-    """The function of ``'module:function'``, else SpecError."""
-    mod, _, fn = target.partition(':')
+def resolve_script(target: str, key: str = 'policy.script'):
+    """The function of ``'module:function'``, else SpecError naming ``key``."""
+    mod, _, fn = str(target).partition(':')
     if not mod or not fn:
-        raise SpecError(f"policy.script must be 'module:function', got {target!r}")
+        raise SpecError(f"{key} must be 'module:function', got {target!r}")
     try:
         f = getattr(importlib.import_module(mod), fn)
     except ImportError as exc:
-        raise SpecError(f'policy.script: cannot import {mod!r}: {_one_line(exc)}') from None
+        raise SpecError(f'{key}: cannot import {mod!r}: {_one_line(exc)}') from None
     except AttributeError:
-        raise SpecError(f'policy.script: {mod!r} has no {fn!r}') from None
+        raise SpecError(f'{key}: {mod!r} has no {fn!r}') from None
     if not callable(f):
-        raise SpecError(f'policy.script: {target!r} is not callable')
+        raise SpecError(f'{key}: {target!r} is not callable')
     return f
 
 
@@ -400,6 +411,12 @@ def plan(spec) -> List[Episode]:
     for i in range(spec['episodes']):
         rng = episode_rng(spec['seed'], i)
         seed = int(rng.integers(0, 2 ** 63 - 1))
+        if 'env' in spec:              # the environment draws the rest from the seed
+            out.append(Episode(index=i, id=f'{i:0{width}d}', seed=seed, duration=0.0,
+                               params={}, init={'kind': 'env'},
+                               policy={'kind': 'env', **spec['env']}, record={},
+                               spec_digest=digest))
+            continue
         params = {**spec['scene'], **draw_randomized(spec['randomize'], rng)}
         init = {k: _draw(v, rng) for k, v in spec['init'].items()}
         if init['kind'] == 'drop' and init.get('azimuth_deg') is None:

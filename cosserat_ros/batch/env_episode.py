@@ -1,0 +1,203 @@
+"""A batch episode that is one episode of a Gymnasium environment of :mod:`cosserat_ros.envs`
+driven by an agent: the evaluation of a policy over thousands of seeds, on a cluster.
+
+In a spec, ``env`` replaces the scene, its start and its policy::
+
+    batch: 1
+    seed: 7
+    episodes: 1000
+    env:
+      id: cosserat_ros/ClothFold-v0     # one of cosserat_ros.envs.ENV_IDS
+      options: {num_pickers: 2}         # gymnasium.make's keywords (the env's options)
+      agent: expert                     # expert | random | 'module:function'
+
+``agent``: ``expert`` (the task's scripted expert, :data:`cosserat_ros.envs.experts.EXPERTS`;
+``pick_place`` actions), ``random`` (uniform actions from the environment's generator), or
+``'module:function'``, a function ``f(env, observation) -> action`` importable on every
+worker (``env`` the unwrapped environment, ``observation`` the last one).
+
+Episode ``i`` resets the environment with the episode's seed (``reset(seed=episode.seed)``,
+the seed :func:`.spec.plan` draws for it) and steps the agent's actions until the
+environment ends it (terminated, or truncated at its ``horizon``). Its bag holds the
+state after the reset and after every action (the mesh, the energies, the ground's and
+the pickers' wrenches, stamped with the simulation time), and its metrics the
+episode's return, its number of actions, whether it terminated or was truncated, and the
+final ``info``'s numbers (``success``, the task's metric: ``fold_distance``,
+``normalized_coverage`` or ``mean_distance``). A divergence (the environment's
+``info['sim_failure']``) fails the episode with that reason; an agent that raises or
+returns an action the environment refuses fails it with the error.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Dict, Optional
+
+import numpy as np
+
+__all__ = ['ENV_KEYS', 'AGENTS', 'load_env', 'make_env', 'resolve_agent', 'simulate_env']
+
+#: the keys of a spec's ``env``, with their defaults (``id`` has none)
+ENV_KEYS = {'id': None, 'options': {}, 'agent': 'expert'}
+#: the built-in agents
+AGENTS = ('expert', 'random')
+#: the spec keys an ``env`` spec does not take: the environment sets them
+SCENE_KEYS = ('duration', 'base', 'scene', 'randomize', 'init', 'policy', 'record')
+
+
+def _spec_error(msg: str):
+    from .spec import SpecError
+    return SpecError(msg)
+
+
+def make_env(env: dict):
+    """The environment of a normalised ``env`` (``gymnasium.make(id, **options)``);
+    ValueError or TypeError with the reason for options it refuses."""
+    import gymnasium as gym
+
+    import cosserat_ros.envs  # noqa: F401 (registers the ids)
+    return gym.make(env['id'], **env['options'])
+
+
+def resolve_agent(env: dict, unwrapped):
+    """``f(env, observation) -> action`` for ``env['agent']`` on the environment
+    ``unwrapped``; ValueError with the reason."""
+    from ..envs.experts import EXPERTS, METRICS, random_agent
+    agent = env['agent']
+    if agent == 'random':
+        return lambda e, obs: random_agent(e)
+    if agent == 'expert':
+        task = next((t for t, (i, _) in METRICS.items() if i == env['id']), None)
+        if task is None or task not in EXPERTS:
+            raise ValueError(f'env.agent: {env["id"]} has no scripted expert')
+        if unwrapped.action_mode != 'pick_place':
+            raise ValueError(f"env.agent: the expert acts in action_mode 'pick_place', "
+                             f"not {unwrapped.action_mode!r}")
+        expert = EXPERTS[task]
+        return lambda e, obs: expert(e)
+    from .spec import resolve_script
+    return resolve_script(agent, key='env.agent')
+
+
+def load_env(raw: dict, v) -> dict:
+    """The ``env`` of a spec ``raw``, checked and normalised (module docstring): an id
+    that is registered, options the environment takes (it is built once, here), an
+    agent that exists; :class:`.spec.SpecError` with one line otherwise."""
+    given = sorted(k for k in SCENE_KEYS if k in raw)
+    if given:
+        raise _spec_error(f'{given[0]}: a spec with env takes its scene, start, duration '
+                          f'and recording from the environment (env.options); drop '
+                          f'{given[0]}')
+    if not isinstance(v, dict):
+        raise _spec_error(f'env must be a mapping (id, options, agent), got {v!r}')
+    bad = sorted(set(v) - set(ENV_KEYS))
+    if bad:
+        raise _spec_error(f'env.{bad[0]}: unknown key; known: {", ".join(ENV_KEYS)}')
+    try:
+        from ..envs import ENV_IDS
+    except ImportError as exc:
+        raise _spec_error(f'env: needs the envs extra (pip install -r '
+                          f'requirements-envs.txt): {exc}') from None
+    out = {k: v.get(k, d) for k, d in ENV_KEYS.items()}
+    if out['id'] not in ENV_IDS:
+        raise _spec_error(f'env.id must be one of {", ".join(sorted(ENV_IDS))}, got '
+                          f'{out["id"]!r}')
+    options = out['options'] if out['options'] is not None else {}
+    if not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
+        raise _spec_error(f'env.options must be a mapping of the environment\'s options, '
+                          f'got {options!r}')
+    if 'render_mode' in options:
+        raise _spec_error('env.options.render_mode: an episode records its bag, it does '
+                          'not render')
+    try:
+        options = json.loads(json.dumps(options))
+    except (TypeError, ValueError):
+        raise _spec_error(f'env.options must be plain data (numbers, strings, lists, '
+                          f'mappings), got {options!r}') from None
+    out['options'] = options
+    if not isinstance(out['agent'], str):
+        raise _spec_error(f"env.agent must be expert, random or 'module:function', got "
+                          f"{out['agent']!r}")
+    try:
+        e = make_env(out)
+    except (ValueError, TypeError) as exc:
+        raise _spec_error(f'env.options: {str(exc).splitlines()[0]}') from None
+    try:
+        resolve_agent(out, e.unwrapped)
+    except ValueError as exc:
+        raise _spec_error(str(exc).splitlines()[0]) from None
+    finally:
+        e.close()
+    return out
+
+
+def _number_items(info: dict) -> Dict[str, object]:
+    """The JSON numbers and booleans of ``info``."""
+    out: Dict[str, object] = {}
+    for k, val in info.items():
+        if isinstance(val, (bool, np.bool_)):
+            out[k] = bool(val)
+        elif isinstance(val, (int, float, np.integer, np.floating)):
+            out[k] = float(val)
+    return out
+
+
+def simulate_env(episode, bag_dir: Path, recorder) -> tuple:
+    """Run the env ``episode`` (module docstring), recording into ``bag_dir`` with
+    ``recorder(bag_dir, sim, handle_names)`` (the batch's own recorder); returns
+    (metrics, simulation time). Raises :class:`.episode.EpisodeFailed` for what any
+    attempt would meet."""
+    from .episode import EpisodeFailed
+    env_spec = {k: episode.policy[k] for k in ENV_KEYS}
+    try:
+        env = make_env(env_spec)
+        agent = resolve_agent(env_spec, env.unwrapped)
+    except (ValueError, TypeError) as exc:
+        raise EpisodeFailed(f'refused: {str(exc).splitlines()[0]}') from None
+    u = env.unwrapped
+    try:
+        obs, info = env.reset(seed=int(episode.seed))
+        names = [f'p{i}' for i in range(u.num_pickers)]
+        rec = recorder(bag_dir, u.sim, names)
+        last: Optional[int] = None
+
+        def record() -> None:
+            nonlocal last
+            stamp = int(round(u.sim.time * 1e9))
+            if last is not None and stamp <= last:
+                return
+            last = stamp
+            rec.obstacles(stamp)
+            rec.state(stamp, {n: u._hid[i] for i, n in enumerate(names)})
+
+        try:
+            record()
+            ret, actions, terminated, truncated = 0.0, 0, False, False
+            while not (terminated or truncated):
+                try:
+                    action = agent(u, obs)
+                    obs, reward, terminated, truncated, info = env.step(action)
+                except (OSError, MemoryError):
+                    raise                    # the machine's: another attempt may pass
+                except Exception as exc:     # the user's code, or an action refused
+                    raise EpisodeFailed(f'agent {env_spec["agent"]} at action {actions}: '
+                                        f'{type(exc).__name__}: '
+                                        f'{str(exc).splitlines()[0] if str(exc) else ""}'
+                                        ) from None
+                ret += float(reward)
+                actions += 1
+                record()
+        finally:
+            rec.bag.close()
+        if 'sim_failure' in info:
+            raise EpisodeFailed(f'the simulation diverged at action {actions}: '
+                                f'{str(info["sim_failure"]).splitlines()[0]}')
+        metrics = {'return': ret, 'actions': actions, 'terminated': bool(terminated),
+                   'truncated': bool(truncated), **_number_items(info),
+                   'kinetic_energy': rec.energy.get('kinetic', 0.0),
+                   'elastic_energy': rec.energy.get('elastic', 0.0),
+                   'max_edge_strain': rec.max_strain, 'peak_handle_force': rec.peak_handle,
+                   'peak_contact_force': rec.peak_contact}
+        return metrics, float(u.sim.time)
+    finally:
+        env.close()
