@@ -1,4 +1,4 @@
-"""The batch engine runs episodes of the Gymnasium environments with an agent (issue 56):
+"""The batch engine runs episodes of the Gymnasium environments with an agent:
 the spec's ``env``, its refusals, and episodes the same as the environment run directly
 (cosserat_ros/batch/env_episode.py)."""
 import json

@@ -210,7 +210,7 @@ def test_a_timed_out_episode_is_retried_then_given_up_with_the_reason(raytmp, tm
     """A policy that hangs (a user's script) is cancelled at the timeout, tried again
     --max-retries times, then recorded failed; the other episodes are not held up. The
     timeout counts from the episode's start in its worker, after the worker's start-up:
-    here every worker starts 25 s late (as on a busy host, issue 60), and the episodes
+    here every worker starts 25 s late (as on a busy host), and the episodes
     that do not hang still run at their first attempt (counted from the submission, as
     the timeout was, the first attempts ran past it). The 20 s are the episode's own,
     generous on a busy host for an episode that runs in about a second."""

@@ -360,7 +360,7 @@ def test_covariant_route_is_consistent_but_unstable():
 
 
 def test_the_name_before_discretisation_still_works_with_a_warning():
-    """``divergence`` was the discretisation's name before 0.2 (issue 57: it now means a
+    """``divergence`` was the discretisation's name before 0.2 (it now means a
     blow-up only): the keyword and the property still work for one release, warned."""
     mesh = grid_mesh(6, 6)
     with pytest.warns(DeprecationWarning, match='discretisation'):

@@ -616,7 +616,7 @@ def test_state_tuples_copy_and_assign():
 
 
 def test_the_fast_passes_import_no_solver():
-    # layering (issue 57): core/solvers/explicit.py drives fast/, which calls the update of
+    # layering: core/solvers/explicit.py drives fast/, which calls the update of
     # core/update.py; fast/ imports nothing from core/solvers, so the two never import
     # each other
     import ast

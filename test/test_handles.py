@@ -337,7 +337,7 @@ def _assert_as_before(sim, hs, before):
 
 
 def test_a_divergence_in_a_later_call_puts_the_handles_back_too():
-    """issue 57: ``step(n)`` with moving handles runs calls of a few steps; when a later
+    """``step(n)`` with moving handles runs calls of a few steps; when a later
     call diverges, the cloth goes back to the start of ``step`` and so do the handles
     (their poses and paths, which the calls that succeeded had moved on, and the held
     vertices' prescribed velocities), so that stepping on from there is the same as if the

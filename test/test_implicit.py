@@ -232,7 +232,7 @@ def test_a_steady_acceleration_is_carried_on_into_the_next_step():
 
 @pytest.mark.slow
 def test_a_settling_sheet_is_converged_to_its_load_not_to_its_last_imbalance():
-    """Issue 6's sheet (E h 500 N/m, D 1e-4 N m, 0.1 kg/m^2, edge pinned), 24 x 24,
+    """The bench's square sheet (E h 500 N/m, D 1e-4 N m, 0.1 kg/m^2, edge pinned), 24 x 24,
     falling from flat and settling at 1/60 s. The tolerance's scale per vertex is the
     larger of the step's start residual and the vertex's weight (ImplicitSolver._newton):
     once the sheet is near rest a step takes few or no Newton iterations (relative to the
@@ -262,7 +262,7 @@ def test_the_forcing_follows_how_well_the_linear_model_predicted(monkeypatch):
     """Eisenstat & Walker's choice 1 (core/solvers/implicit.py): each step's first CG
     solve at FIRST_FORCING; a later one at how far the last linear model missed, never
     below the last forcing to the power 1.618 while that is above 0.1, nor above 0.5.
-    On issue 6's sheet settling (forces near linear over a step) the model is good and
+    On the bench's square sheet settling (forces near linear over a step) the model is good and
     the forcing falls well below 0.5: the solve converges superlinearly."""
     import cosserat_ros.core.solvers.implicit as implicit
     steps, cg, newton = [], implicit.ImplicitSolver._cg, implicit.ImplicitSolver._newton
@@ -520,7 +520,7 @@ def test_conjugate_gradients_per_newton_iteration_do_not_grow_with_the_grid():
     """Where the bending dominates the inertia at the mesh's scale (beta = 6 xi K_ii / (m_i
     / dt^2) above PLATE_RATIO: ImplicitSolver._preconditioner), the preconditioner holds
     the whole bending operator (``bending.plate_matrix``), not only its diagonal blocks:
-    on issue 6's sheet falling at 1/60 s the CG iterations per Newton iteration stay put
+    on the bench's square sheet falling at 1/60 s the CG iterations per Newton iteration stay put
     from N = 20 (beta 0.9: the blocks) to 40 (beta 14: the operator); with the blocks
     alone they went 3.1 -> 4.8, the bending-dominated modes' condition number growing as
     beta, as N^4."""
@@ -545,7 +545,7 @@ def test_conjugate_gradients_per_newton_iteration_do_not_grow_with_the_grid():
 
 
 def _split_case(n=14):
-    """Issue 6's sheet, edges pinned, at a dt that puts beta above SPLIT_RATIO (the split
+    """The bench's square sheet, edges pinned, at a dt that puts beta above SPLIT_RATIO (the split
     preconditioner), stretched 1% in its plane with a little in-plane noise."""
     from cosserat_ros.core.solvers.implicit import SPLIT_RATIO
     mesh = grid_mesh(n, n)
@@ -607,7 +607,7 @@ def test_the_split_preconditioner_is_p_on_a_flat_sheet_and_turns_with_it():
 
 
 def test_a_sheet_comes_to_the_same_rest_with_the_split_preconditioner(monkeypatch):
-    """The preconditioner changes the path of the solve, not its solution: issue 6's sheet
+    """The preconditioner changes the path of the solve, not its solution: the bench's square sheet
     at beta above SPLIT_RATIO settles where it settles with P whole (the plate on each
     coordinate, SPLIT_RATIO raised), to the solve's tolerance."""
     import cosserat_ros.core.solvers.implicit as implicit

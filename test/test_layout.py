@@ -116,7 +116,7 @@ def test_the_imports_at_load_form_no_cycle():
             visit(m, [m])
 
 
-#: the longest a module may grow before it is split by what its parts do (issue 57)
+#: the longest a module may grow before it is split by what its parts do
 MOST_LINES = 800
 
 

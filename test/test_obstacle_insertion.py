@@ -1,4 +1,4 @@
-"""Obstacles placed through the cloth (issue 60; cosserat_ros/core/contact.py, "Obstacles
+"""Obstacles placed through the cloth (cosserat_ros/core/contact.py, "Obstacles
 placed through the cloth"): the vertices an obstacle is added or posed through are
 released from it until they come out of its contact layer, so the placement adds no
 energy beyond the push of the vertices it finds in its layer but outside its solid.
@@ -90,7 +90,7 @@ def _distances(sim, oid):
 @pytest.mark.slow
 @SOLVERS
 def test_ground_added_under_a_hanging_cloth_leaves_it_hanging_through(solver):
-    """The issue's scene: a ground added at z = 0 under a cloth hanging below it. Every
+    """A ground added at z = 0 under a cloth hanging below it. Every
     free vertex is inside the ground's solid, so each is released from it and nothing
     pushes: the cloth moves on exactly as its twin without the ground (positions within
     1e-9 m), the energy after one step and after 0.2 s is the twin's within 1e-9 J (the

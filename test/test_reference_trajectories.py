@@ -1,4 +1,4 @@
-"""The restructured core reproduces the trajectories of the core before it (issue 23).
+"""The restructured core reproduces the trajectories of the core before it.
 
 ``data/reference_trajectories.npz`` holds positions, velocities and energies after 500
 steps of twelve cases, written by ``data/make_reference.py`` on commit 6a1f975 (the last

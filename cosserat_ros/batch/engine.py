@@ -20,7 +20,7 @@ worker (below), then yields :data:`STARTED`, then the episode's result.
 ``episode_timeout`` counts from the driver's receipt of that marker: it bounds the
 episode's own run, not the wait for a CPU, a fresh worker's start, its imports and its
 kernels' loading, which on a busy host take a minute or more and had timed out episodes
-that had not begun (issue 60). Those have a limit of their own, ``startup_timeout``, from
+that had not begun. Those have a limit of their own, ``startup_timeout``, from
 the submission to the marker, so that a worker stuck in its start-up is caught too. Its
 default, :data:`STARTUP_TIMEOUT`, applies when an episode timeout is set (with neither
 limit set nothing is timed): 1800 s, generous because a cold compile cache means

@@ -1,7 +1,7 @@
 """The one reviewed set of numba options for the kernels of the step.
 
 * ``cache=True``: compiled code is stored beside the package and reused by the next process
-  (start-up cost, issue 6).
+  (start-up cost).
 * ``error_model='numpy'``: a division by zero gives inf/NaN as in numpy instead of raising
   from inside a parallel kernel. The step's divergence check (non-finite or impossible
   speed) catches it and restores the state. Dropping the Python-semantics checks also lets

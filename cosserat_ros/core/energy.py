@@ -124,7 +124,7 @@ def elastic_energy(model, coeff, x: np.ndarray, scratch: np.ndarray) -> float:
     """E_m + E_b + E_c [J] at x (n,3): the sum of the terms' ``energy``, from the one
     evaluation of their fields the report makes (:func:`elastic_fields`: one vertex pass
     for the bending's and the coupling's curvature changes, the strain averages only with
-    phi != 0), half the time of the terms' own three (issue 6's 80 x 80 sheet: 0.66
+    phi != 0), half the time of the terms' own three (the bench's square sheet at 80 x 80: 0.66
     against 1.33 ms; the implicit solver's line search takes ~5 a step)."""
     face_energy, kap, eb, estab = elastic_fields(model, coeff, x, scratch)
     return (float(face_energy.sum()) + bending.energy_from_fields(model, coeff, kap, estab)

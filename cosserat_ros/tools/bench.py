@@ -1,6 +1,6 @@
 """``make bench`` / ``python -m cosserat_ros.tools.bench``: what a step costs, as tables.
 
-Two scenes (:data:`.peer_mujoco.SCENES`): the one of issue 6 (a 1 m square sheet, N x N
+Two scenes (:data:`.peer_mujoco.SCENES`): ``issue6`` (a 1 m square sheet, N x N
 grid, all four edges pinned, gravity, density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3,
 D = 1e-4 N m, no coupling) and the shipped ``config/cloth.yaml`` (its material, coupling
 phi = 1e-6 N included, pinned at the two top corners). Shared machines are noisy: compare
@@ -16,12 +16,12 @@ off, and how its extra cost grows with N):
    and of the energy report, the first-call (compile or cache load) time, memory of state
    and operators per vertex, threads.
 2. ``peer`` (needs the ``mujoco`` wheel), per scene: MuJoCo's flex on the same scene,
-   Euler (and on the issue-6 scene ``discrete``), at our dt and at its own largest stable
+   Euler (and on the square sheet ``discrete``), at our dt and at its own largest stable
    dt, beside ours, with the ratio of step times measured in alternating batches; and the
-   settled centre sag of both on the issue-6 scene (about 0.0354 m), ours with each
+   settled centre sag of both on the square sheet (about 0.0354 m), ours with each
    solver. The part ``implicit`` sets our implicit solver at 1/60 s, converged and
    linearised (``solver_iterations`` 1), beside our explicit one and MuJoCo's
-   ``discrete`` at 1/60 s, on the issue-6 and the stiff (E h = 2e3 N/m) sheets.
+   ``discrete`` at 1/60 s, on the square and the stiff (E h = 2e3 N/m) sheets.
 3. ``node`` (:mod:`.bench_node`): the installed ``cloth_node`` started as ``ros2 run``
    starts it: process start to first mesh message with a cold and a warm compile cache,
    and the real-time factor of a 40 x 40 cloth publishing at 30 Hz, beside the real-time
@@ -208,7 +208,7 @@ def paired_ratio(n: int, pairs: int = 9, batch_s: float = 0.1,
 
 
 def settled_sag(n: int, solver: str = 'explicit', iterations: int = 20) -> float:
-    """Our centre sag [m] on the issue-6 scene after SETTLE_TIME s of damped settling (the
+    """Our centre sag [m] on the square sheet after SETTLE_TIME s of damped settling (the
     explicit solver at DT_FRACTION of its critical dt, the implicit one at 1/60 s with
     ``iterations`` Newton iterations at most, 1: linearised)."""
     sim = scene_simulator(n, damping=SETTLE_RATE * peer.DENSITY, solver=solver)
@@ -477,7 +477,7 @@ CRUMPLE_S = 1.5
 
 
 def crumpled_scenes(n: int, seconds: float = CRUMPLE_S):
-    """The issue's crumpled cloth: the shipped cloth (``config/cloth.yaml``'s material, 1 m,
+    """The crumpled cloth: the shipped cloth (``config/cloth.yaml``'s material, 1 m,
     no pins), nearly upright (80 degrees) with its lower edge 0.5 m above the ground,
     dropped with self-collision on and stepped at 0.9 of its critical dt for ``seconds``:
     it falls, folds onto itself and lies crumpled on the ground. Returns two simulators
@@ -565,7 +565,7 @@ def _growth(nv, extra) -> None:
               '(n log n over this range: ~1.1)')
 
 
-#: the issue-26 sweep's stiff sheet: issue 6's, with E h = 2e3 N/m
+#: the implicit sweep's stiff sheet: the square sheet with E h = 2e3 N/m
 STIFF = peer.Scene('stiff', 2e3, 1e-4, 0.1, 0.0, 0.0, 'boundary')
 
 

@@ -139,7 +139,7 @@ def part_node(watch_s: float):
     import yaml
     from ament_index_python.packages import get_package_share_directory
     from ..ros.params import pin_set
-    # the demo as shipped (the installed config/cloth.yaml), and the issue's scene
+    # the demo as shipped (the installed config/cloth.yaml), and the square sheet
     with open(os.path.join(get_package_share_directory('cosserat_ros'), 'config',
                            'cloth.yaml')) as fh:
         shipped = yaml.safe_load(fh)['cloth_node']['ros__parameters']
@@ -147,7 +147,7 @@ def part_node(watch_s: float):
     demo_pins = shipped['pinned']['sets']
     cases = []
     for name, mat, pinned in (('config/cloth.yaml material and pins', demo, demo_pins),
-                              ('issue 6 scene, all edges pinned', SCENE, ['boundary'])):
+                              ('square sheet, all edges pinned', SCENE, ['boundary'])):
         mesh = grid_mesh(40, 40)
         # the node's cloth: its critical dt, and stepped alone beside each node run
         probe = ClothSimulator(mesh, mat, dt=1e-5, check_dt=False)
@@ -157,13 +157,13 @@ def part_node(watch_s: float):
         for dt in sorted({2e-4, round(DT_FRACTION * crit, 7)}):
             if dt <= crit:
                 cases.append((name, mat, pinned, dt, crit, probe, 'explicit'))
-    # the implicit solver at 1/60 s on the issue's scene (issue 26: RTF >= 1 at N = 40
+    # the implicit solver at 1/60 s on the square sheet (its target: RTF >= 1 at N = 40
     # while the node publishes at 30 Hz); its sheet falls from flat, then hangs settled
     probe = ClothSimulator(grid_mesh(40, 40), SCENE, dt=1 / 60, check_dt=False,
                            solver='implicit')
     probe.pin(pin_set(probe.mesh, 'boundary'))
     probe.gravity = (0.0, 0.0, -peer.GRAVITY)
-    cases.append(('issue 6 scene, all edges pinned, implicit solver', SCENE, ['boundary'],
+    cases.append(('square sheet, all edges pinned, implicit solver', SCENE, ['boundary'],
                   1 / 60, crit, probe, 'implicit'))
     with tempfile.TemporaryDirectory() as tmp:
         params = os.path.join(tmp, 'p.yaml')
@@ -211,7 +211,7 @@ def part_node(watch_s: float):
             print(f'| {label} beside it | {rate1:.1f} | {rtf1:.3f} | {rtf1 / rtf0:.2f} '
                   '| |', flush=True)
         part_busy_step(watch_s)
-        # issue 26's demo: real fabric with the implicit solver at frame-rate steps
+        # the implicit solver's demo: real fabric with the implicit solver at frame-rate steps
         denim = os.path.join(get_package_share_directory('cosserat_ros'), 'config',
                              'denim.yaml')
         with open(denim) as fh:
@@ -229,7 +229,7 @@ def part_busy_step(seconds: float, n: int = 40):
     cloth (config/cloth.yaml's material, n x n) in calls of one 30 Hz frame's steps for
     ``seconds`` s, alone and beside one and two busy processes, with ``threads='auto'``
     (the default: core/threads.py) and with all of numba's threads fixed; each as its
-    speed over the speed alone (auto alone). Targets (issue 60): 0.6 beside one, 0.4
+    speed over the speed alone (auto alone). Targets: 0.6 beside one, 0.4
     beside two."""
     import yaml
     from ament_index_python.packages import get_package_share_directory

@@ -6,14 +6,14 @@ imports it only inside the functions that run it. Two scenes (:data:`SCENES`), e
 square on an N x N grid under gravity:
 
 * ``issue6``: all four edges pinned, areal density 0.1 kg/m^2, E h = 500 N/m, nu = 1/3,
-  D = 1e-4 N m (the scene of issue 6);
+  D = 1e-4 N m (the square sheet, ``issue6``);
 * ``cloth``: the shipped ``config/cloth.yaml`` (zeta = 50 N/m, xi = 2e-5 N m, i.e.
   E h = 266.7 N/m and D = 1.2e-4 N m, density 0.2 kg/m^2, damping 0.1 kg/(m^2 s)), pinned
   at the two top corners, falling and swinging (MuJoCo has no stretch-bend coupling; our
   side keeps the shipped phi = 1e-6 N).
 
 MuJoCo takes a 3-D Young's modulus and a thickness, so ``h = sqrt(12 (1 - nu^2) D / (E h))``
-(1.46 mm for issue 6) and ``E = (E h) / h``.
+(1.46 mm for the square sheet) and ``E = (E h) / h``.
 
 Every vertex of MuJoCo's grid carries mass ``density * spacing^2`` (the flexcomp ``mass``
 is spread evenly over the grid), which is what the lumped dual areas of our regular grid
@@ -49,7 +49,7 @@ SCENES = {'issue6': Scene('issue6', 500.0, 1e-4, 0.1, 0.0, 0.0, 'boundary'),
           'cloth': Scene('cloth', 16.0 * 50.0 / 3.0, 6.0 * 2e-5, 0.2, 0.1, 1e-6,
                          'top_corners')}
 
-#: the issue-6 scene's constants (bench and tests read these)
+#: the square sheet's constants (bench and tests read these)
 YOUNGS_2D = SCENES['issue6'].youngs_2d      # E h [N/m]
 BENDING = SCENES['issue6'].bending          # D [N m]
 POISSON = 1.0 / 3.0

@@ -147,20 +147,20 @@ FIRST_FORCING = 0.5
 GOLDEN = 0.5 * (1.0 + 5.0 ** 0.5)
 
 #: the preconditioner holds the bending's whole plate operator where it dominates the
-#: inertia by more than this (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet at
+#: inertia by more than this (:meth:`ImplicitSolver._preconditioner`; the bench's square sheet at
 #: N = 40, beta 14, gained from it, the hanging denim at N = 80, beta 7, lost)
 PLATE_RATIO = 10.0
 
 #: and above this ratio, the preconditioner is split in each vertex's frame into a
-#: tangential and a normal part (:meth:`ImplicitSolver._preconditioner`; issue 6's sheet
+#: tangential and a normal part (:meth:`ImplicitSolver._preconditioner`; the bench's square sheet
 #: at beta 14 / 20 / 29 took 1.45x / 1.06x / 0.64x the time a step whole)
 SPLIT_RATIO = 25.0
 
 
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: ``np.linalg.norm`` of a whole array calls OpenBLAS's dot, whose
-    worker threads then spin and take the cores from the compiled kernels (issue 6's 80 x
-    80 sheet: 0.6 -> 5.8 ms an internal force inside the solve); a compiled sum, no
+    worker threads then spin and take the cores from the compiled kernels (the bench's
+    square sheet at 80 x 80: 0.6 -> 5.8 ms an internal force inside the solve); a compiled sum, no
     temporary (:func:`.vectors.dot`)."""
     return float(np.sqrt(dot(a, a)))
 
@@ -361,7 +361,7 @@ class ImplicitSolver:
 
         Why the plate operator: the diagonal blocks alone leave CG a condition number of
         about 1 + beta in the bending's band of modes (beta grows as N^4 at a fixed dt:
-        0.9 / 14 / 230 on issue 6's sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
+        0.9 / 14 / 230 on the bench's square sheet at N = 20 / 40 / 80 and 1/60 s), so ~sqrt(beta)
         iterations (~18 per Newton iteration at N = 80). Why the split: on each of the
         three coordinates the operator's two-ring stencil meets the membrane's 3 x 3
         blocks and the factor fills in; split, the plate meets one coordinate a vertex
@@ -670,8 +670,8 @@ class ImplicitSolver:
                 # P has drifted from A: factor it again (``_stale``, ``refresh``). Not
                 # merely because CG needs many iterations: with the bending's diagonal
                 # blocks only (beta below PLATE_RATIO) even a fresh P needs many (~17 a
-                # solve on issue 6's 80 x 80 sheet without the plate operator), and a
-                # factorization costs ~30 solves (~60 and ~2 ms there)
+                # solve on the bench's square sheet at 80 x 80 without the plate
+                # operator), and a factorization costs ~30 solves (~60 and ~2 ms there)
                 self._stale = True
             rep.cg_iterations += used
             if phi is None:

@@ -16,7 +16,7 @@ stored as one dense row-major block each (the columns' rows, the triangle's uppe
 zero), so that the forward solve is one dot product per row of a block and the backward
 one an axpy per row, with one row index per row and not per entry.
 
-Why not SuperLU's own solve (docs/performance.md, tenth session; issue 6's sheet at
+Why not SuperLU's own solve (docs/performance.md, tenth session; the bench's square sheet at
 160 x 160, the split preconditioner's two parts): a pair of solves inside a step took
 10.4 ms through SuperLU (the normal part in a worker thread) and takes 4.4 ms here. The
 tangential part alone, back to back: 5.1-7.4 ms through SuperLU, 3.0 here; after an
@@ -100,7 +100,7 @@ def _solve(perm, start, rows, rptr, blk, vptr, dinv, acc, y, b, out):
     backward one an axpy a row; the dot products may be summed in SIMD lanes
     (``REDUCTION``: a preconditioner's solve needs no fixed summation order). Every
     index is unsigned (``compiled.py``). Against signed indices, the triangles solved by
-    columns and the sums in order: 160 x 160, issue 6's tangential part, 3.0 ms a solve
+    columns and the sums in order: 160 x 160, the square sheet's tangential part, 3.0 ms a solve
     against 7.4 (docs/performance.md)."""
     n = U64(len(b))
     for j in range(n):

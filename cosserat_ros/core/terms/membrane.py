@@ -365,7 +365,7 @@ def add_compression_product(model, tens: np.ndarray, which: np.ndarray, q: np.nd
     """out (n,3) += ``(G(T) (x) I_3) q``: the geometric stiffness of ``tens`` (m,3, from
     :func:`compression_stress`) times q (n,3), over the faces ``which`` (from
     :func:`compressed_faces`; the others' rows are zero). One serial pass over those
-    faces, scattering to their corners: a cloth in tension has few (issue 6's sheet
+    faces, scattering to their corners: a cloth in tension has few (the bench's square sheet
     settling: 1-2% of its faces), and a pass over all faces and a gather over every
     vertex took 0.8 ms a CG iteration at 160 x 160 for them."""
     f = model.faces
