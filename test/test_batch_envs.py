@@ -24,12 +24,15 @@ def env_spec(episodes=2, **env):
 def direct(episode, agent):
     """The episode's environment run without the batch: return, actions, final info."""
     e = gym.make(episode.policy['id'], **episode.policy['options'])
-    obs, info = e.reset(seed=episode.seed)
-    ret, n, done = 0.0, 0, False
-    while not done:
-        obs, r, te, tr, info = e.step(agent(e.unwrapped, obs))
-        ret, n, done = ret + r, n + 1, te or tr
-    return ret, n, info
+    try:
+        obs, info = e.reset(seed=episode.seed)
+        ret, n, done = 0.0, 0, False
+        while not done:
+            obs, r, te, tr, info = e.step(agent(e.unwrapped, obs))
+            ret, n, done = ret + r, n + 1, te or tr
+        return ret, n, info
+    finally:
+        e.close()
 
 
 @pytest.mark.parametrize('change, words', [
@@ -41,7 +44,9 @@ def direct(episode, agent):
     ({'env': {**FOLD, 'options': {'action_mode': 'handle_delta'}}},
      ['env.agent', 'pick_place']),
     ({'env': {**FOLD, 'agent': 'no_such_module:f'}}, ['env.agent', 'cannot import']),
-    ({'env': {**FOLD, 'agent': 'batch_agents:nothing'}}, ['env.agent', 'no', 'nothing']),
+    ({'env': {**FOLD, 'agent': 'batch_agents:nothing'}}, ['env.agent', "has no 'nothing'"]),
+    ({'env': {**FOLD, 'options': {'randomize': {'material.damping': {'uniform': [0.1, 1e9]}}}}},
+     ['env.options', 'material.damping']),
     ({'env': {**FOLD, 'steps': 3}}, ['env.steps', 'unknown key']),
     ({'env': {**FOLD, 'options': {'render_mode': 'rgb_array'}}}, ['render_mode']),
 ])
@@ -114,12 +119,14 @@ def test_the_expert_and_a_user_agent_act_and_a_failing_agent_fails_the_episode(t
     ret, n, info = direct(ep, batch_agents.corner_to_centre)
     assert res['status'] == 'ok' and (res['metrics']['return'], res['metrics']['actions'],
                                       ) == (ret, n)
-    for name, words in (('raises', ['RuntimeError', 'this agent gives up']),
-                        ('wrong_shape', ['ValueError'])):
+    for name, words in (('raises', ['agent batch_agents:raises at action 0', 'RuntimeError',
+                                    'this agent gives up']),
+                        ('wrong_shape', ['agent batch_agents:wrong_shape at action 0',
+                                         'ValueError']),
+                        ('blow_up', ['the simulation diverged at action 1'])):
         ep = plan(load_spec(env_spec(episodes=1, agent=f'batch_agents:{name}')))[0]
         res = run_episode(ep, tmp_path / name)
         assert res['status'] == 'failed' and res['metrics'] is None
-        assert f'agent batch_agents:{name} at action 0' in res['error']
         for w in words:
             assert w in res['error'], res['error']
         assert not (tmp_path / name / 'episodes' / ep.id / 'bag').exists()

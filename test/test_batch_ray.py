@@ -155,7 +155,6 @@ def test_one_worker_and_two_give_the_same_bytes_and_one_line_each(raytmp, tmp_pa
     assert table.num_rows == 4 and 'metric_coverage' in table.column_names
 
 
-
 def test_an_environment_s_episodes_run_on_ray_as_they_do_alone(raytmp, tmp_path):
     """An ``env`` spec (a Gymnasium task and an agent) on two workers: every episode once,
     each the same bytes and metrics as the same episode run in this process."""
@@ -171,6 +170,7 @@ def test_an_environment_s_episodes_run_on_ray_as_they_do_alone(raytmp, tmp_path)
     line = next(ln for ln in lines if ln['id'] == ep.id)
     assert line['bag_sha256'] == alone['bag_sha256']
     assert line['metrics'] == alone['metrics'] and line['metrics']['actions'] == 2
+
 
 #: a sitecustomize (Python imports it at every start of an interpreter that has its
 #: directory on the path): a Ray worker process (default_worker.py) notes its pid in that

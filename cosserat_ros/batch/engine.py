@@ -163,7 +163,11 @@ def _ready_worker(episode: dict) -> None:
     if policy.get('kind') == 'env':                # build and reset the environment
         try:
             from .env_episode import make_env
-            make_env(policy).reset(seed=0)
+            env = make_env(policy)
+            try:
+                env.reset(seed=0)
+            finally:
+                env.close()
         except Exception:                          # noqa: BLE001 (the episode says why)
             pass
         return

@@ -21,11 +21,13 @@ the seed :func:`.spec.plan` draws for it) and steps the agent's actions until th
 environment ends it (terminated, or truncated at its ``horizon``). Its bag holds the
 state after the reset and after every action (the mesh, the energies, the ground's and
 the pickers' wrenches, stamped with the simulation time), and its metrics the
-episode's return, its number of actions, whether it terminated or was truncated, and the
+episode's return, its number of actions, whether it terminated or was truncated, the
 final ``info``'s numbers (``success``, the task's metric: ``fold_distance``,
-``normalized_coverage`` or ``mean_distance``). A divergence (the environment's
-``info['sim_failure']``) fails the episode with that reason; an agent that raises or
-returns an action the environment refuses fails it with the error.
+``normalized_coverage`` or ``mean_distance``) and the final energies. A divergence (the
+environment's ``info['sim_failure']``, or a start that fails) fails the episode with that
+reason; an agent that raises or returns an action the environment refuses fails it with
+the error. Only what the machine may cause another time (``MemoryError``, an ``OSError``
+other than a missing or forbidden file) propagates, for the engine to retry.
 """
 from __future__ import annotations
 
@@ -43,11 +45,28 @@ ENV_KEYS = {'id': None, 'options': {}, 'agent': 'expert'}
 AGENTS = ('expert', 'random')
 #: the spec keys an ``env`` spec does not take: the environment sets them
 SCENE_KEYS = ('duration', 'base', 'scene', 'randomize', 'init', 'policy', 'record')
+#: the normalised ``env`` specs this process has built and checked (canonical JSON): a
+#: spec loaded again (:func:`.spec.plan` loads what it is given) is not built again
+_CHECKED: set = set()
 
 
 def _spec_error(msg: str):
     from .spec import SpecError
     return SpecError(msg)
+
+
+def _one_line(exc: BaseException) -> str:
+    from .spec import _one_line as one
+    return one(exc)
+
+
+def _the_machine_s(exc: BaseException) -> bool:
+    """Whether ``exc`` is what the machine may cause another time (a full disk, no memory),
+    not what the episode's code or data does every time."""
+    if isinstance(exc, MemoryError):
+        return True
+    return isinstance(exc, OSError) and not isinstance(
+        exc, (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError))
 
 
 def make_env(env: dict):
@@ -81,8 +100,8 @@ def resolve_agent(env: dict, unwrapped):
 
 def load_env(raw: dict, v) -> dict:
     """The ``env`` of a spec ``raw``, checked and normalised (module docstring): an id
-    that is registered, options the environment takes (it is built once, here), an
-    agent that exists; :class:`.spec.SpecError` with one line otherwise."""
+    that is registered, options the environment takes (it is built and reset once, here),
+    an agent that exists; :class:`.spec.SpecError` with one line otherwise."""
     given = sorted(k for k in SCENE_KEYS if k in raw)
     if given:
         raise _spec_error(f'{given[0]}: a spec with env takes its scene, start, duration '
@@ -97,7 +116,7 @@ def load_env(raw: dict, v) -> dict:
         from ..envs import ENV_IDS
     except ImportError as exc:
         raise _spec_error(f'env: needs the envs extra (pip install -r '
-                          f'requirements-envs.txt): {exc}') from None
+                          f'requirements-envs.txt): {_one_line(exc)}') from None
     out = {k: v.get(k, d) for k, d in ENV_KEYS.items()}
     if out['id'] not in ENV_IDS:
         raise _spec_error(f'env.id must be one of {", ".join(sorted(ENV_IDS))}, got '
@@ -118,16 +137,24 @@ def load_env(raw: dict, v) -> dict:
     if not isinstance(out['agent'], str):
         raise _spec_error(f"env.agent must be expert, random or 'module:function', got "
                           f"{out['agent']!r}")
+    key = json.dumps(out, sort_keys=True)
+    if key in _CHECKED:
+        return out
     try:
         e = make_env(out)
     except (ValueError, TypeError) as exc:
-        raise _spec_error(f'env.options: {str(exc).splitlines()[0]}') from None
+        raise _spec_error(f'env.options: {_one_line(exc)}') from None
     try:
         resolve_agent(out, e.unwrapped)
+        e.reset(seed=0)
     except ValueError as exc:
-        raise _spec_error(str(exc).splitlines()[0]) from None
+        raise _spec_error(_one_line(exc)) from None
+    except Exception as exc:                 # noqa: BLE001 (a start the options break)
+        raise _spec_error(f'env.options: the environment\'s start failed: '
+                          f'{type(exc).__name__}: {_one_line(exc)}') from None
     finally:
         e.close()
+    _CHECKED.add(key)
     return out
 
 
@@ -149,14 +176,18 @@ def simulate_env(episode, bag_dir: Path, recorder) -> tuple:
     attempt would meet."""
     from .episode import EpisodeFailed
     env_spec = {k: episode.policy[k] for k in ENV_KEYS}
+    env = None
     try:
-        env = make_env(env_spec)
-        agent = resolve_agent(env_spec, env.unwrapped)
-    except (ValueError, TypeError) as exc:
-        raise EpisodeFailed(f'refused: {str(exc).splitlines()[0]}') from None
-    u = env.unwrapped
-    try:
-        obs, info = env.reset(seed=int(episode.seed))
+        try:
+            env = make_env(env_spec)
+            agent = resolve_agent(env_spec, env.unwrapped)
+            obs, info = env.reset(seed=int(episode.seed))
+        except Exception as exc:             # noqa: BLE001 (the same every attempt)
+            if _the_machine_s(exc):
+                raise
+            raise EpisodeFailed(f'the environment\'s start failed: {type(exc).__name__}: '
+                                f'{_one_line(exc)}') from None
+        u = env.unwrapped
         names = [f'p{i}' for i in range(u.num_pickers)]
         rec = recorder(bag_dir, u.sim, names)
         last: Optional[int] = None
@@ -177,13 +208,11 @@ def simulate_env(episode, bag_dir: Path, recorder) -> tuple:
                 try:
                     action = agent(u, obs)
                     obs, reward, terminated, truncated, info = env.step(action)
-                except (OSError, MemoryError):
-                    raise                    # the machine's: another attempt may pass
-                except Exception as exc:     # the user's code, or an action refused
+                except Exception as exc:     # noqa: BLE001 (the user's code, or a refusal)
+                    if _the_machine_s(exc):
+                        raise
                     raise EpisodeFailed(f'agent {env_spec["agent"]} at action {actions}: '
-                                        f'{type(exc).__name__}: '
-                                        f'{str(exc).splitlines()[0] if str(exc) else ""}'
-                                        ) from None
+                                        f'{type(exc).__name__}: {_one_line(exc)}') from None
                 ret += float(reward)
                 actions += 1
                 record()
@@ -191,13 +220,12 @@ def simulate_env(episode, bag_dir: Path, recorder) -> tuple:
             rec.bag.close()
         if 'sim_failure' in info:
             raise EpisodeFailed(f'the simulation diverged at action {actions}: '
-                                f'{str(info["sim_failure"]).splitlines()[0]}')
+                                f'{(str(info["sim_failure"]).splitlines() or [""])[0]}')
         metrics = {'return': ret, 'actions': actions, 'terminated': bool(terminated),
                    'truncated': bool(truncated), **_number_items(info),
                    'kinetic_energy': rec.energy.get('kinetic', 0.0),
-                   'elastic_energy': rec.energy.get('elastic', 0.0),
-                   'max_edge_strain': rec.max_strain, 'peak_handle_force': rec.peak_handle,
-                   'peak_contact_force': rec.peak_contact}
+                   'elastic_energy': rec.energy.get('elastic', 0.0)}
         return metrics, float(u.sim.time)
     finally:
-        env.close()
+        if env is not None:
+            env.close()

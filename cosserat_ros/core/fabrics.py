@@ -136,8 +136,6 @@ def tensile_stiffness(c11: float, c12: float, c22: float) -> float:
     return (c11 - c12 * c12 / c22) + (c22 - c12 * c12 / c11)
 
 
-
-
 #: ARCSim's stretching rows ``C11, C12, C22`` [N/m, halved] of each preset's file: the
 #: first (zero strain), and those of the stretch along texture direction 1 (0 degrees, the
 #: file's second row) and 2 (90 degrees, its sixth) at the largest principal stretch 7/6
@@ -193,7 +191,8 @@ def model_tension(tensile_stiffness: float, stiffness: float, knee: float, e) ->
     package's sheet in uniaxial stress at Green strain ``e``: the seed's membrane of a
     preset (``lambda_2 = mu_2 = 2 zeta``, ``zeta = 3 E h / 16``) plus the ``stiffening``
     term ``W = k <s - s0>^2`` (:mod:`.terms.stiffening`, ``s = sqrt(e11^2 + e22^2)``), the
-    transverse strain ``e22`` where its stress is zero::
+    transverse strain ``e22`` where its stress is zero (a stretch: ``e > 0``; 0 is returned
+    for ``e <= 0``)::
 
         S_22 = lambda_2 (e + e22) + 2 mu_2 e22 + 2 k <s - s0> e22 / s = 0
         S_11 = lambda_2 (e + e22) + 2 mu_2 e   + 2 k <s - s0> e   / s
@@ -221,8 +220,8 @@ def fit_stiffening(name: str, strain=FIT_STRAIN, samples: int = 41):
     """(stiffness [N/m], knee [-], error) of the ``stiffening`` term that brings the preset
     ``name``'s :func:`model_tension` to its :func:`data_tension` at ``samples`` Green strains
     over ``strain``: least squares of the difference over the data's tension at the range's
-    end (``error`` the largest such difference, a fraction). The start's knees (0, 0.01,
-    ..., 0.06) are each tried, the best kept."""
+    end (``error`` the largest such difference, a fraction). The start's knees 0, 0.01,
+    0.02, 0.04 and 0.06 are each tried, the best kept."""
     from scipy.optimize import least_squares
     eh = PRESETS[name].tensile_stiffness
     e = np.linspace(strain[0], strain[1], samples)

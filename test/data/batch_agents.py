@@ -17,3 +17,11 @@ def raises(env, obs):
 
 def wrong_shape(env, obs):
     return np.zeros(3)
+
+
+def blow_up(env, obs):
+    """Twenty times the stable step and a shaken cloth: the step diverges."""
+    env.sim.dt = 20 * env.sim.critical_dt()
+    rng = np.random.default_rng(0)
+    env.sim.set_velocities(rng.normal(0.0, 1.0, env.sim.positions.shape))
+    return np.zeros((env.num_pickers, 4), np.float32)
