@@ -83,12 +83,22 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
     the steps done. The first step after a change of count is not timed: the threading
     layer resizes its team of threads then (measured here: a 20-step trial on 2 threads
     right after 1 read 30% slower than the same steps later, and the tuner kept the slower
-    count on a quiet machine)."""
+    count on a quiet machine). A trial of one count is followed by a trial of the other,
+    of the same length and also right after its change of count, so that the two are
+    compared alike: a short trial of all threads right after their partners were parked
+    reads slower than their long-run cost (N = 40: 0.35-0.49 against 0.28 ms a step), and
+    against one thread's long-run cost it kept one thread on a quiet machine, at 0.46 ms
+    (docs/performance.md, "make bench against 30fd1ab")."""
     was = numba.get_num_threads()
     done = 0
+    retrial: Optional[int] = None
     try:
         while done < n:
-            k, most = tuner.plan(time.perf_counter())
+            if retrial is not None:         # the count a trial is compared with, alike
+                k, most, paired, retrial = retrial, PROBE_STEPS, True, None
+            else:
+                k, most = tuner.plan(time.perf_counter())
+                paired = False
             m = n - done if most is None else min(most, n - done)
             numba.set_num_threads(k)
             if k != tuner.last and m > 1:
@@ -105,6 +115,10 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
             done += got
             if got < m:
                 break
+            if most is not None and not paired:
+                other = [c for c in tuner.choices if c != k]
+                if other and tuner.cost[other[0]] is not None:
+                    retrial = other[0]
     finally:
         numba.set_num_threads(was)
     return done
