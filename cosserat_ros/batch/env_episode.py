@@ -37,27 +37,17 @@ from typing import Dict, Optional
 
 import numpy as np
 
-__all__ = ['ENV_KEYS', 'AGENTS', 'load_env', 'make_env', 'resolve_agent', 'simulate_env']
+from .spec import SpecError, _one_line, resolve_script
+
+__all__ = ['ENV_KEYS', 'load_env', 'make_env', 'resolve_agent', 'simulate_env']
 
 #: the keys of a spec's ``env``, with their defaults (``id`` has none)
 ENV_KEYS = {'id': None, 'options': {}, 'agent': 'expert'}
-#: the built-in agents
-AGENTS = ('expert', 'random')
 #: the spec keys an ``env`` spec does not take: the environment sets them
 SCENE_KEYS = ('duration', 'base', 'scene', 'randomize', 'init', 'policy', 'record')
 #: the normalised ``env`` specs this process has built and checked (canonical JSON): a
 #: spec loaded again (:func:`.spec.plan` loads what it is given) is not built again
 _CHECKED: set = set()
-
-
-def _spec_error(msg: str):
-    from .spec import SpecError
-    return SpecError(msg)
-
-
-def _one_line(exc: BaseException) -> str:
-    from .spec import _one_line as one
-    return one(exc)
 
 
 def _the_machine_s(exc: BaseException) -> bool:
@@ -94,7 +84,6 @@ def resolve_agent(env: dict, unwrapped):
                              f"not {unwrapped.action_mode!r}")
         expert = EXPERTS[task]
         return lambda e, obs: expert(e)
-    from .spec import resolve_script
     return resolve_script(agent, key='env.agent')
 
 
@@ -104,38 +93,38 @@ def load_env(raw: dict, v) -> dict:
     an agent that exists; :class:`.spec.SpecError` with one line otherwise."""
     given = sorted(k for k in SCENE_KEYS if k in raw)
     if given:
-        raise _spec_error(f'{given[0]}: a spec with env takes its scene, start, duration '
+        raise SpecError(f'{given[0]}: a spec with env takes its scene, start, duration '
                           f'and recording from the environment (env.options); drop '
                           f'{given[0]}')
     if not isinstance(v, dict):
-        raise _spec_error(f'env must be a mapping (id, options, agent), got {v!r}')
+        raise SpecError(f'env must be a mapping (id, options, agent), got {v!r}')
     bad = sorted(set(v) - set(ENV_KEYS))
     if bad:
-        raise _spec_error(f'env.{bad[0]}: unknown key; known: {", ".join(ENV_KEYS)}')
+        raise SpecError(f'env.{bad[0]}: unknown key; known: {", ".join(ENV_KEYS)}')
     try:
         from ..envs import ENV_IDS
     except ImportError as exc:
-        raise _spec_error(f'env: needs the envs extra (pip install -r '
+        raise SpecError(f'env: needs the envs extra (pip install -r '
                           f'requirements-envs.txt): {_one_line(exc)}') from None
     out = {k: v.get(k, d) for k, d in ENV_KEYS.items()}
     if out['id'] not in ENV_IDS:
-        raise _spec_error(f'env.id must be one of {", ".join(sorted(ENV_IDS))}, got '
+        raise SpecError(f'env.id must be one of {", ".join(sorted(ENV_IDS))}, got '
                           f'{out["id"]!r}')
     options = out['options'] if out['options'] is not None else {}
     if not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
-        raise _spec_error(f'env.options must be a mapping of the environment\'s options, '
+        raise SpecError(f'env.options must be a mapping of the environment\'s options, '
                           f'got {options!r}')
     if 'render_mode' in options:
-        raise _spec_error('env.options.render_mode: an episode records its bag, it does '
+        raise SpecError('env.options.render_mode: an episode records its bag, it does '
                           'not render')
     try:
         options = json.loads(json.dumps(options))
     except (TypeError, ValueError):
-        raise _spec_error(f'env.options must be plain data (numbers, strings, lists, '
+        raise SpecError(f'env.options must be plain data (numbers, strings, lists, '
                           f'mappings), got {options!r}') from None
     out['options'] = options
     if not isinstance(out['agent'], str):
-        raise _spec_error(f"env.agent must be expert, random or 'module:function', got "
+        raise SpecError(f"env.agent must be expert, random or 'module:function', got "
                           f"{out['agent']!r}")
     key = json.dumps(out, sort_keys=True)
     if key in _CHECKED:
@@ -143,14 +132,14 @@ def load_env(raw: dict, v) -> dict:
     try:
         e = make_env(out)
     except (ValueError, TypeError) as exc:
-        raise _spec_error(f'env.options: {_one_line(exc)}') from None
+        raise SpecError(f'env.options: {_one_line(exc)}') from None
     try:
         resolve_agent(out, e.unwrapped)
         e.reset(seed=0)
     except ValueError as exc:
-        raise _spec_error(_one_line(exc)) from None
+        raise SpecError(_one_line(exc)) from None
     except Exception as exc:                 # noqa: BLE001 (a start the options break)
-        raise _spec_error(f'env.options: the environment\'s start failed: '
+        raise SpecError(f'env.options: the environment\'s start failed: '
                           f'{type(exc).__name__}: {_one_line(exc)}') from None
     finally:
         e.close()
