@@ -47,18 +47,46 @@ def flat_pose(rest_xy: np.ndarray, xy: np.ndarray, centre) -> np.ndarray:
     return X @ (U @ Vt).T + np.asarray(centre, dtype=float)
 
 
+#: the flatten expert rolls a flap out when the farthest vertex the pickers can reach
+#: is less than this share of the farthest vertex's distance from its flat position
+HIDDEN_SHARE = 0.5
+#: ... and weighs a candidate's distance across the pull's line by this against its
+#: distance along it
+ACROSS_WEIGHT = 2.0
+
+
 def flatten_expert(env) -> np.ndarray:
     """Pick the vertex farthest from its flat position (:func:`flat_pose`, centred where
     the crumpled cloth started: the workspace's centre) and place it there. The picker
     grasps the top-most vertex under its pick point, so a vertex is picked through the
     one on top of it: the pick is the point whose grasped vertex is the farthest from its
-    flat position, and the place puts that vertex there."""
+    flat position, and the place puts that vertex there.
+
+    A flap folded under the top layer cannot be picked. When the farthest vertex h the
+    pickers can reach is less than :data:`HIDDEN_SHARE` of h's displacement d = flat - x
+    (h lies under the top layer), the expert rolls the fold out instead: a layer lying
+    on a flap, dragged away from the crease, takes the crease along at half its own
+    speed (the flap, held by the ground's friction under both layers' weight, peels
+    into the top layer), so that moving the top layer by 2 s unfolds a flap of depth s.
+    h, mirrored across the crease, is 2 s from its flat position: the pull is by -d,
+    from the top-layer vertex farthest from h along -d (less :data:`ACROSS_WEIGHT` times
+    its distance across that line, so that the pull runs through the flap)."""
     from ..batch.episode import top_vertex
     x = env.sim.positions
     flat = flat_pose(env.rest[:, :2], x[:, :2], env.centre0)
     far = np.linalg.norm(x[:, :2] - flat, axis=1)
     a = np.zeros((env.num_pickers, 4), np.float32)
     grasped = np.array([top_vertex(x, x[v, :2], env.picker_radius) for v in range(len(x))])
+    h = int(np.argmax(far))
+    if env.num_pickers == 1 and far[grasped].max() < HIDDEN_SHARE * far[h]:
+        d = flat[h] - x[h, :2]
+        e = -d / np.linalg.norm(d)
+        top = np.unique(grasped)
+        r = x[top, :2] - x[h, :2]
+        p = top[np.argmax(r @ e - ACROSS_WEIGHT * np.abs(r[:, 0] * e[1] - r[:, 1] * e[0]))]
+        a[0, :2] = _to_action(env, x[p, :2])
+        a[0, 2:] = _to_action(env, x[p, :2] - d)
+        return a
     taken = []
     for v in np.argsort(-far[grasped], kind='stable'):
         g = grasped[v]
