@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from cosserat_ros.batch import load_spec, plan, read_manifest, run_batch, run_episode
+from cosserat_ros.batch.engine import SYSTEM_CONFIG
 from cosserat_ros.batch.spec import SpecError
 
 # real Ray instances and clusters, and the batch command (make test, not test-fast)
@@ -116,15 +117,31 @@ def cluster(raytmp, monkeypatch):
     monkeypatch.setattr(rc, 'ENABLE_RAY_CLUSTER', False)
     args = {'num_cpus': 1, 'temp_dir': os.path.join(raytmp, 'ray'),
             'node_ip_address': '127.0.0.1',
-            'include_dashboard': False}
+            'include_dashboard': False, '_system_config': SYSTEM_CONFIG}
     c = Cluster(initialize_head=True, head_node_args=args)
-    worker = c.add_node(**{k: v for k, v in args.items() if k != 'temp_dir'})
+    # the head holds the cluster's system config; the other node takes it from there
+    worker = c.add_node(**{k: v for k, v in args.items() if k not in ('temp_dir',
+                                                                      '_system_config')})
     c.wait_for_nodes()
     yield c, worker
     c.shutdown()
 
 
 # ---------------------------------------------------------------- a private instance
+def test_a_private_instance_runs_its_workers_at_the_driver_s_priority(raytmp):
+    """Ray nices its workers to 15 by default; beside busy processes at nice 0 they then
+    crawl (engine.SYSTEM_CONFIG). The private instance's workers run at the driver's."""
+    import ray
+    from cosserat_ros.batch import engine, reaper
+    watcher = engine._ray_init(None, os.path.join(raytmp, 'ray'))
+    try:
+        worker_nice = ray.get(ray.remote(num_cpus=1)(lambda: os.nice(0)).remote())
+    finally:
+        ray.shutdown()
+        reaper.stop(watcher)
+    assert worker_nice == os.nice(0)
+
+
 def test_one_worker_and_two_give_the_same_bytes_and_one_line_each(raytmp, tmp_path):
     s = load_spec(spec(episodes=4))
     one = run_batch(s, tmp_path / 'one', workers=1)       # 1 worker x 2 numba threads
