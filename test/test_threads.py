@@ -44,15 +44,14 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
         assert numba.get_num_threads() == 2
     assert tuner.best == 2
     ones = [m for k, m in runs if k == 1]
-    assert ones and max(ones) <= T.trial_steps(0.3e-3)
+    assert ones and max(ones) <= T.PROBE_STEPS
     cost[2], cost[1] = 3e-3, 0.6e-3                    # one busy process beside it
     runs.clear()
     for _ in range(20):
         T.run_tuned(tuner, step, 500)
     assert tuner.best == 1
     # the first call ran on the count that was best; once measured slow, that count
-    # runs only trials of PROBE_SECONDS of the best's steps (here fewer than
-    # PROBE_STEPS: PROBE_STEPS), one per PROBE_PERIOD
+    # runs only trials, at most PROBE_STEPS steps each, one per PROBE_PERIOD
     assert runs[0] == (2, 500)
     twos = [m for k, m in runs[1:] if k == 2]
     t_busy = 19 * 500 * cost[1]
@@ -69,35 +68,6 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     # a step that fails part way ends the call with the steps done
     assert T.run_tuned(tuner, lambda m: m - 1, 100) <= 99
     assert numba.get_num_threads() == 2
-
-
-@needs_two
-def test_trials_are_long_enough_that_waking_the_threads_does_not_decide_them(monkeypatch):
-    """A small cloth on a quiet host: two threads 0.09 ms a step, one 0.12 ms, but the
-    first 10 steps on two threads after a change of count cost 0.25 ms each (the parked
-    partner wakes from its futex at each barrier, cold caches: measured at N = 20,
-    docs/performance.md, "make bench against 30fd1ab"). 20-step trials read two threads
-    at 0.17 ms and keep one thread; trials of PROBE_SECONDS of steps find two."""
-    clock = _Clock()
-    monkeypatch.setattr(T, 'time', clock)
-    since = {'k': None, 'n': 0}
-
-    def step(m):
-        k = numba.get_num_threads()
-        if k != since['k']:
-            since.update(k=k, n=0)
-        for _ in range(m):
-            clock.t += (0.25e-3 if since['n'] < 10 else 0.09e-3) if k == 2 else 0.12e-3
-            since['n'] += 1
-        return m
-    numba.set_num_threads(2)
-    tuner = T.ThreadTuner(2)
-    for _ in range(200):                  # a 30 Hz frame's steps a call, 40 s
-        T.run_tuned(tuner, step, 170)
-    assert tuner.best == 2
-    assert tuner.cost[2] < 0.1e-3 and tuner.cost[1] == pytest.approx(0.12e-3)
-    assert T.trial_steps(0.09e-3) > 100 and T.trial_steps(None) == T.PROBE_STEPS
-    assert T.trial_steps(1.0) == T.PROBE_STEPS and T.trial_steps(1e-9) == T.PROBE_MOST
 
 
 def _sim():

@@ -9,42 +9,26 @@ the busy process shares), while one thread waits for nobody. Which count is fast
 depends on the load and changes from run to run (docs/performance.md, "A busy machine"),
 so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the faster,
 and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load
-both ways. A trial runs :func:`trial_steps` steps at the count on trial (the rest of the
-call at the best): about :data:`PROBE_SECONDS` of the best count's steps, at least
-:data:`PROBE_STEPS`, so that trying a count that has become slow costs little, and a trial
-is long enough that the first steps after a change of count, which cost more (the parked
-threads wake, the caches are cold), do not decide it.
+both ways. A measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial
+(the rest of the call at the best), so that trying a count that has become slow costs
+little.
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.
 """
 from __future__ import annotations
 
-import math
 import time
 from typing import Callable, Optional, Tuple
 
 import numba
 
-__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'trial_steps',
-           'run_tuned']
+__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'run_tuned']
 
 #: [s] wall time between two measurements of the count not in use
 PROBE_PERIOD = 2.0
-#: the fewest steps a trial of a count runs
+#: the most steps a call runs at a count on trial
 PROBE_STEPS = 20
-#: [s] a trial's length in the best count's steps (:func:`trial_steps`)
-PROBE_SECONDS = 0.01
-#: the most steps a trial runs
-PROBE_MOST = 2000
-
-
-def trial_steps(best_cost: Optional[float]) -> int:
-    """The steps of a trial: PROBE_SECONDS of steps at ``best_cost`` [s per step] (the
-    lowest cost measured so far; None: none is), within [PROBE_STEPS, PROBE_MOST]."""
-    if not best_cost or best_cost <= 0.0:
-        return PROBE_STEPS
-    return int(min(PROBE_MOST, max(PROBE_STEPS, math.ceil(PROBE_SECONDS / best_cost))))
 
 
 class ThreadTuner:
@@ -81,16 +65,11 @@ class ThreadTuner:
         return self.best
 
     def plan(self, now: float) -> Tuple[int, Optional[int]]:
-        """(count, the most steps to run at it: :func:`trial_steps` while it is on trial,
+        """(count, the most steps to run at it: :data:`PROBE_STEPS` while it is on trial,
         None when it is the best)."""
         k = self.threads(now)
         trial = len(self.choices) > 1 and (self.cost[k] is None or k != self.best)
-        return k, (self.trial_steps() if trial else None)
-
-    def trial_steps(self) -> int:
-        """:func:`trial_steps` of the lowest cost measured."""
-        known = [c for c in self.cost.values() if c is not None]
-        return trial_steps(min(known) if known else None)
+        return k, (PROBE_STEPS if trial else None)
 
     def record(self, threads: int, steps: int, seconds: float) -> None:
         """``steps`` steps on ``threads`` threads took ``seconds`` of wall time."""
@@ -102,26 +81,27 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
     """``step(k)`` (returns the steps done, fewer on a failure) over ``n`` steps, each
     batch on the count ``tuner`` plans, numba's thread count restored afterwards. Returns
     the steps done. The first step after a change of count is not timed: the threading
-    layer resizes its team of threads then. A trial of one count is followed by a trial
-    of the other, of the same length and also right after its change of count, so that
-    the two are compared alike: a trial of all threads right after their partners were
-    parked reads slower than their long-run cost, and compared with one thread's long-run
-    cost it kept one thread on a quiet machine (docs/performance.md, "make bench against
-    30fd1ab")."""
+    layer resizes its team of threads then (measured here: a 20-step trial on 2 threads
+    right after 1 read 30% slower than the same steps later, and the tuner kept the slower
+    count on a quiet machine). A trial of one count is followed by a trial of the other,
+    of the same length and also right after its change of count, so that the two are
+    compared alike: a short trial of all threads right after their partners were parked
+    reads slower than their long-run cost (N = 40: 0.35-0.49 against 0.28 ms a step), and
+    against one thread's long-run cost it kept one thread on a quiet machine, at 0.46 ms
+    (docs/performance.md, "make bench against 30fd1ab")."""
     was = numba.get_num_threads()
     done = 0
-    retrial: Optional[Tuple[int, int]] = None     # (count, steps)
+    retrial: Optional[int] = None
     try:
         while done < n:
             if retrial is not None:         # the count a trial is compared with, alike
-                (k, most), paired, retrial = retrial, True, None
+                k, most, paired, retrial = retrial, PROBE_STEPS, True, None
             else:
                 k, most = tuner.plan(time.perf_counter())
                 paired = False
             m = n - done if most is None else min(most, n - done)
             numba.set_num_threads(k)
-            changed = k != tuner.last and m > 1
-            if changed:
+            if k != tuner.last and m > 1:
                 tuner.last = k
                 got = step(1)                       # the change of count, untimed
                 done += got
@@ -138,7 +118,7 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
             if most is not None and not paired:
                 other = [c for c in tuner.choices if c != k]
                 if other and tuner.cost[other[0]] is not None:
-                    retrial = (other[0], m + (1 if changed else 0))
+                    retrial = other[0]
     finally:
         numba.set_num_threads(was)
     return done
