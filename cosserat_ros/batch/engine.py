@@ -304,12 +304,11 @@ def write_parquet(out: Path) -> Optional[Path]:
 
 # ---------------------------------------------------------------- the run
 #: Ray's settings for a private instance. ``worker_niceness``: Ray runs its workers at
-#: nice 15 (its default, so that its own GCS and raylet come first), and beside other
-#: busy processes at nice 0 a worker then gets a CFS weight of 36 against their 1024:
-#: about 3% of a core (measured: `make test` beside two busy processes, the episode
-#: workers at 1-3% CPU for minutes). The episodes are the user's work, so they run at the
-#: driver's priority. A cluster joined by address keeps its own setting
-#: (``ray start --system-config='{"worker_niceness": 0}'`` gives the same there).
+#: nice 15 by default (so that its own GCS and raylet come first); beside busy processes
+#: at nice 0 a worker then has a CFS weight of 36 against their 1024 each, and the
+#: episodes, the user's own work, crawl (docs/performance.md, "make test beside two busy
+#: processes"). They run at the driver's priority. A cluster joined by address keeps its
+#: own setting (``ray start --head --system-config='{"worker_niceness": 0}'``).
 SYSTEM_CONFIG = {'worker_niceness': 0}
 
 

@@ -94,8 +94,8 @@ def load_env(raw: dict, v) -> dict:
     given = sorted(k for k in SCENE_KEYS if k in raw)
     if given:
         raise SpecError(f'{given[0]}: a spec with env takes its scene, start, duration '
-                          f'and recording from the environment (env.options); drop '
-                          f'{given[0]}')
+                        f'and recording from the environment (env.options); drop '
+                        f'{given[0]}')
     if not isinstance(v, dict):
         raise SpecError(f'env must be a mapping (id, options, agent), got {v!r}')
     bad = sorted(set(v) - set(ENV_KEYS))
@@ -105,27 +105,27 @@ def load_env(raw: dict, v) -> dict:
         from ..envs import ENV_IDS
     except ImportError as exc:
         raise SpecError(f'env: needs the envs extra (pip install -r '
-                          f'requirements-envs.txt): {_one_line(exc)}') from None
+                        f'requirements-envs.txt): {_one_line(exc)}') from None
     out = {k: v.get(k, d) for k, d in ENV_KEYS.items()}
     if out['id'] not in ENV_IDS:
         raise SpecError(f'env.id must be one of {", ".join(sorted(ENV_IDS))}, got '
-                          f'{out["id"]!r}')
+                        f'{out["id"]!r}')
     options = out['options'] if out['options'] is not None else {}
     if not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
         raise SpecError(f'env.options must be a mapping of the environment\'s options, '
-                          f'got {options!r}')
+                        f'got {options!r}')
     if 'render_mode' in options:
         raise SpecError('env.options.render_mode: an episode records its bag, it does '
-                          'not render')
+                        'not render')
     try:
         options = json.loads(json.dumps(options))
     except (TypeError, ValueError):
         raise SpecError(f'env.options must be plain data (numbers, strings, lists, '
-                          f'mappings), got {options!r}') from None
+                        f'mappings), got {options!r}') from None
     out['options'] = options
     if not isinstance(out['agent'], str):
         raise SpecError(f"env.agent must be expert, random or 'module:function', got "
-                          f"{out['agent']!r}")
+                        f"{out['agent']!r}")
     key = json.dumps(out, sort_keys=True)
     if key in _CHECKED:
         return out
@@ -140,7 +140,7 @@ def load_env(raw: dict, v) -> dict:
         raise SpecError(_one_line(exc)) from None
     except Exception as exc:                 # noqa: BLE001 (a start the options break)
         raise SpecError(f'env.options: the environment\'s start failed: '
-                          f'{type(exc).__name__}: {_one_line(exc)}') from None
+                        f'{type(exc).__name__}: {_one_line(exc)}') from None
     finally:
         e.close()
     _CHECKED.add(key)
