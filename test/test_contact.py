@@ -103,6 +103,43 @@ def test_distance_of_each_primitive_and_its_normal(shape):
     np.testing.assert_allclose(got[ok, 1:], fd[ok], atol=1e-5)
 
 
+def test_the_obstacle_table_holds_each_obstacle_by_named_fields():
+    """The table the compiled step reads is a view of named records (contact.OBSTACLE,
+    feature_shapes.FEATURE_META): every field is where the set put it, and the column
+    offsets the kernels use are the fields' places."""
+    from cosserat_ros.core.feature_shapes import FEATURE_META, FM_NCORNER, FM_WIDTH
+    box = trimesh.creation.box(extents=(0.4, 0.3, 0.2))
+    obs = ObstacleSet()
+    obs.add('plane', point=(0, 0, -1), normal=(0, 0, 1), friction=(0.6, 0.4))
+    cap = obs.add('capsule', center=(1, 2, 3), radius=0.05, half_length=0.4,
+                  orientation=_rotation(2))
+    obs.add('mesh', vertices=box.vertices, faces=box.faces, center=(0, 1, 1))
+    obs.set_pose(cap, (1, 2, 3.5), _rotation(2), linear_velocity=(0.5, 0, 0),
+                 angular_velocity=(0, 0, 2.0))
+    rec = C.records(obs.table)
+    assert C.WIDTH == obs.table.shape[1] == C.OBSTACLE.itemsize // 8
+    assert list(rec['shape']) == [C.SHAPES['plane'], C.SHAPES['capsule'], C.SHAPES['mesh']]
+    np.testing.assert_array_equal(rec[1]['position'], (1, 2, 3.5))
+    np.testing.assert_allclose(rec[1]['rotation'], C.rotation_matrix(_rotation(2)), atol=1e-15)
+    np.testing.assert_array_equal(rec[1]['params'], (0.05, 0.4, 0.0))
+    assert (rec[0]['mu_s'], rec[0]['mu_k']) == (0.6, 0.4) and rec[0]['reach'] == 0.0
+    # a capsule's farthest point from c is at half length + radius; it turns at 2 rad/s
+    assert rec[1]['reach'] == pytest.approx(0.45)
+    assert rec[1]['speed'] == pytest.approx(0.5 + 2.0 * 0.45)
+    for name, col in (('position', C.POS), ('rotation', C.ROT), ('velocity', C.VEL),
+                      ('omega', C.OMEGA), ('reach', C.REACH), ('speed', C.SPEED)):
+        np.testing.assert_array_equal(np.ravel(rec[name]),
+                                      obs.table[:, col:col + rec[name][0].size].ravel())
+    rec[1]['reach'] = 7.0                               # a view: the table changes
+    assert obs.table[1, C.REACH] == 7.0
+    fm = obs.shapes[0].view(FEATURE_META).reshape(-1)
+    assert obs.shapes[0].shape[1] == FM_WIDTH
+    assert fm[2]['ncorner'] == 8 == obs.shapes[0][2, FM_NCORNER]
+    np.testing.assert_allclose(fm[2]['hi'] - fm[2]['lo'], (0.4, 0.3, 0.2))
+    with pytest.raises(ValueError, match='obstacle table'):
+        C.records(obs.table[:, :5])
+
+
 def test_a_moved_mesh_keeps_its_field_and_is_where_it_was_moved():
     """A pose change rebuilds the table, not the concatenated distance fields (a moving
     mesh obstacle would otherwise copy every mesh's field, up to 16 MB each, at every
@@ -1126,17 +1163,17 @@ def test_the_obstacles_a_group_of_vertices_leaves_out_change_nothing(moving):
             # rushing at it or, half the time, ahead of a moving one
             k = trial % 9 if trial % 3 else int(rng.integers(9, ob.shape[0]))
             u = rng.standard_normal(3)
-            vo = ob[k, C.VEL:C.VEL + 3].copy()
+            vo = C.records(ob)[k]['velocity'].copy()
             if trial % 2 and vo.any():
                 u = vo
             u /= np.linalg.norm(u)
             if k == 0:
-                u = ob[0, C.ROT + 2:C.ROT + 9:3]
-                centre = (ob[0, C.POS:C.POS + 3] + rng.uniform(-0.5, 0.5, 3)
+                u = C.records(ob)[0]['rotation'][:, 2]
+                centre = (C.records(ob)[0]['position'] + rng.uniform(-0.5, 0.5, 3)
                           + rng.uniform(0.0, 0.05) * u)
             else:
-                centre = (ob[k, C.POS:C.POS + 3]
-                          + (ob[k, C.REACH] + rng.uniform(0.0, 0.03)) * u)
+                centre = (C.records(ob)[k]['position']
+                          + (C.records(ob)[k]['reach'] + rng.uniform(0.0, 0.03)) * u)
             pts = centre + rng.uniform(-0.005, 0.005, (16, 3))
             vel = (-rng.uniform(0.0, 6.0 if trial % 8 < 4 else 0.5, (16, 1)) * u
                    + rng.normal(0.0, 0.3, (16, 3)))

@@ -113,11 +113,12 @@ they test the obstacle from the vertex's position at the step's start and find i
 outside the layer, or where the broad phase leaves it out (:func:`near_mask`: every
 vertex of the group starts more than ``2 th`` plus the step's travel away from it).
 
-Layout: the obstacles are rows of :data:`WIDTH` floats in ``Control.obstacles`` (columns
-named below), mesh fields in ``Control.sdf_meta`` / ``Control.sdf_data``; per vertex, the
-last step's contact in ``Control.contact`` (force on the vertex (3), obstacle row or -1,
-gap ``d - th`` at its old position, and where a second obstacle acted in the step, its
-part of the force (3) and row; then the release mask; the columns ``C_*`` below). This
+Layout: the obstacles are rows of :data:`WIDTH` floats in ``Control.obstacles`` (the
+fields of :data:`OBSTACLE`, :mod:`.obstacle_table`), mesh fields in ``Control.sdf_meta``
+/ ``Control.sdf_data``; per vertex, the last step's contact in ``Control.contact`` (force
+on the vertex (3), obstacle row or -1, gap ``d - th`` at its old position, and where a
+second obstacle acted in the step, its part of the force (3) and row; then the release
+mask; the columns ``C_*`` below). This
 module imports no ROS package.
 """
 from __future__ import annotations
@@ -131,27 +132,12 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from .compiled import kernel
+from .obstacle_table import (FIELD, MU_K, MU_S, OBSTACLE, OMEGA, PARAM, POS, REACH, ROT,
+                             SHAPE, SHAPES, SPEED, VEL, WIDTH, records)
 from .surface_query import point_triangle_sq
 
-__all__ = ['SHAPES', 'WIDTH', 'resolve', 'distance', 'rotation_matrix',
+__all__ = ['SHAPES', 'OBSTACLE', 'WIDTH', 'records', 'resolve', 'distance', 'rotation_matrix',
            'mesh_distance_field']
-
-#: shape codes of column ``SHAPE``
-SHAPES = {'plane': 0, 'sphere': 1, 'box': 2, 'capsule': 3, 'cylinder': 4, 'mesh': 5}
-
-# columns of an obstacle row
-SHAPE = 0
-POS = 1          # 1..3 position c
-ROT = 4          # 4..12 R, row-major (world = c + R p)
-VEL = 13         # 13..15 linear velocity [m/s]
-OMEGA = 16       # 16..18 angular velocity [rad/s], world frame
-PARAM = 19       # 19..21 radius / half extents / (radius, half length)
-MU_S = 22
-MU_K = 23
-FIELD = 24       # row of Control.sdf_meta (mesh)
-REACH = 25       # radius of a sphere about c that holds the obstacle (0: a plane)
-SPEED = 26       # the fastest any point of it within REACH moves [m/s]
-WIDTH = 27
 
 # Control.contact columns: the vertex's whole contact force over the step (3), the row of
 # the obstacle it touched (-1: none), its gap at the step's start, and where it touched a

@@ -23,8 +23,8 @@ from .compiled import kernel
 from .contact import PARAM, POS, ROT, SHAPE, SHAPES
 
 __all__ = ['Shapes', 'sharp_features', 'no_shapes', 'box_corners', 'rim_sides', 'n_features',
-           'feature_corners', 'edge_ends', 'BOX_EDGES', 'FEATURED', 'FM_CORNER', 'FM_NCORNER',
-           'FM_EDGE', 'FM_NEDGE', 'FM_LO', 'FM_HI', 'FM_WIDTH']
+           'feature_corners', 'edge_ends', 'BOX_EDGES', 'FEATURED', 'FEATURE_META',
+           'FM_CORNER', 'FM_NCORNER', 'FM_EDGE', 'FM_NEDGE', 'FM_LO', 'FM_HI', 'FM_WIDTH']
 
 
 BOX = SHAPES['box']
@@ -43,10 +43,20 @@ FEATURED = (BOX, CYLINDER)
 #: [degrees] a mesh obstacle's edge is sharp where its two faces' normals differ by
 #: more than this and the edge is convex (it bulges towards the cloth)
 SHARP_ANGLE = 30.0
-#: the columns of :attr:`Shapes.fmeta`, per obstacle row: first corner, corners, first
-#: edge, edges, then the corners' bounding box in the obstacle's frame (lo, hi)
-FM_CORNER, FM_NCORNER, FM_EDGE, FM_NEDGE, FM_LO, FM_HI = 0, 1, 2, 3, 4, 7
-FM_WIDTH = 10
+#: a row of :attr:`Shapes.fmeta` (one per obstacle row), by name: the layout whose float64
+#: columns the compiled code reads by the offsets ``FM_*`` below
+#: (``fmeta.view(FEATURE_META)`` gives the fields by name)
+FEATURE_META = np.dtype([
+    ('corner', 'f8'),              # its first corner in Shapes' corners
+    ('ncorner', 'f8'),             # its corners
+    ('edge', 'f8'),                # its first edge in Shapes' edges
+    ('nedge', 'f8'),               # its edges
+    ('lo', 'f8', 3),               # the corners' bounding box in the obstacle's frame [m]
+    ('hi', 'f8', 3),
+])
+FM_CORNER, FM_NCORNER, FM_EDGE, FM_NEDGE, FM_LO, FM_HI = (
+    FEATURE_META.fields[f][1] // 8 for f in ('corner', 'ncorner', 'edge', 'nedge', 'lo', 'hi'))
+FM_WIDTH = FEATURE_META.itemsize // 8
 
 
 class Shapes(NamedTuple):

@@ -30,8 +30,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from . import contact as C
-from .feature_shapes import FM_CORNER, FM_EDGE, FM_HI, FM_LO, FM_NCORNER, FM_NEDGE, FM_WIDTH, \
-    sharp_features
+from .feature_shapes import FEATURE_META, FM_WIDTH, sharp_features
 
 __all__ = ['ObstacleSet', 'SHAPE_ARGS']
 
@@ -324,53 +323,51 @@ class ObstacleSet:
         (``fields`` False) keeps those: they are in each obstacle's own frame, and the
         set and its order are unchanged, so a moving mesh does not copy every mesh's
         field again (up to 16 MB each)."""
-        rows, metas, datas, ids = [], [], [], []
+        table = np.zeros((len(self._items), C.WIDTH))
+        rec = C.records(table)
+        metas, datas, ids = [], [], []
         offset = 0
-        for oid, o in self._items.items():
-            row = np.zeros(C.WIDTH)
-            row[C.SHAPE] = C.SHAPES[o.shape]
-            row[C.POS:C.POS + 3] = o.position
-            row[C.ROT:C.ROT + 9] = C.rotation_matrix(o.orientation).reshape(-1)
-            row[C.VEL:C.VEL + 3] = o.velocity
-            row[C.OMEGA:C.OMEGA + 3] = o.omega
+        for row, (oid, o) in zip(rec, self._items.items()):
+            row['shape'] = C.SHAPES[o.shape]
+            row['position'] = o.position
+            row['rotation'] = C.rotation_matrix(o.orientation)
+            row['velocity'] = o.velocity
+            row['omega'] = o.omega
             if o.shape in ('sphere',):
-                row[C.PARAM] = o.params['radius']
+                row['params'][0] = o.params['radius']
             elif o.shape == 'box':
-                row[C.PARAM:C.PARAM + 3] = o.params['half_extents']
+                row['params'] = o.params['half_extents']
             elif o.shape in ('capsule', 'cylinder'):
-                row[C.PARAM] = o.params['radius']
-                row[C.PARAM + 1] = o.params['half_length']
+                row['params'][:2] = o.params['radius'], o.params['half_length']
             elif o.shape == 'mesh':
                 origin, shape, values, spacing = o.field
-                row[C.FIELD] = len(metas)
+                row['field'] = len(metas)
                 metas.append([offset, shape[0], shape[1], shape[2], origin[0], origin[1],
                               origin[2], spacing])
                 datas.append(values)
                 offset += len(values)
-            row[C.MU_S], row[C.MU_K] = o.friction
+            row['mu_s'], row['mu_k'] = o.friction
             reach = 0.0 if o.shape == 'plane' else self._reach(o)
             if o.shape == 'mesh':
                 reach += FIELD_MARGIN_CELLS * o.field[3]
-            row[C.REACH] = reach
-            row[C.SPEED] = (float(np.linalg.norm(o.velocity))
+            row['reach'] = reach
+            row['speed'] = (float(np.linalg.norm(o.velocity))
                             + float(np.linalg.norm(o.omega)) * reach)
-            rows.append(row)
             ids.append(oid)
-        self.table = np.array(rows).reshape(-1, C.WIDTH)
+        self.table = table
         self.ids = ids
         if not fields:
             return
         self.meta = np.array(metas, dtype=np.float64).reshape(-1, 8)
         # the mesh obstacles' sharp corners and edges, per row (features.Shapes)
-        fmeta = np.zeros((len(rows), FM_WIDTH))
+        fmeta = np.zeros((len(table), FM_WIDTH))
+        frec = fmeta.view(FEATURE_META).reshape(-1)
         corners, edges = [np.zeros((0, 3))], [np.zeros((0, 2), np.int64)]
         nc = ne = 0
         for r, o in enumerate(self._items.values()):
             if o.shape == 'mesh' and len(o.sharp[0]):
                 c, e = o.sharp
-                fmeta[r, [FM_CORNER, FM_NCORNER, FM_EDGE, FM_NEDGE]] = nc, len(c), ne, len(e)
-                fmeta[r, FM_LO:FM_LO + 3] = c.min(0)
-                fmeta[r, FM_HI:FM_HI + 3] = c.max(0)
+                frec[r] = nc, len(c), ne, len(e), c.min(0), c.max(0)
                 corners.append(c)
                 edges.append(e)
                 nc += len(c)
