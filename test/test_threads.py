@@ -25,8 +25,9 @@ class _Clock:
 def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     """A host where two threads cost 0.3 ms a step alone and 3 ms beside a busy process
     (one thread: 0.5 and 0.6 ms): calls of 500 steps run on the faster count, each trial
-    of the other count is at most PROBE_STEPS steps, the choice follows the load both
-    ways, and numba's thread count is what it was after every call."""
+    of the other count lasts PROBE_STEPS steps or PROBE_SECONDS, whichever is longer, and
+    little more, the choice follows the load both ways, and numba's thread count is what
+    it was after every call."""
     clock = _Clock()
     monkeypatch.setattr(T, 'time', clock)
     cost = {2: 0.3e-3, 1: 0.5e-3}
@@ -43,8 +44,20 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
         assert T.run_tuned(tuner, step, 500) == 500
         assert numba.get_num_threads() == 2
     assert tuner.best == 2
-    ones = [m for k, m in runs if k == 1]
-    assert ones and max(ones) <= T.PROBE_STEPS
+    # the trials of one thread: a step where the count changed (untimed), then timed
+    # batches until PROBE_SECONDS (more than PROBE_STEPS steps at 0.5 ms), by at most
+    # one step more
+    trials, k0 = [], None
+    for k, m in runs:
+        if k == 1:
+            if k0 != 1:
+                trials.append([])
+            trials[-1].append(m)
+        k0 = k
+    assert trials and all(t[0] == 1 for t in trials)
+    for t in trials:
+        timed = sum(t[1:]) * cost[1]
+        assert T.PROBE_SECONDS <= timed < T.PROBE_SECONDS + 2 * cost[1]
     cost[2], cost[1] = 3e-3, 0.6e-3                    # one busy process beside it
     runs.clear()
     for _ in range(20):
@@ -56,10 +69,10 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     twos = [m for k, m in runs[1:] if k == 2]
     t_busy = 19 * 500 * cost[1]
     assert twos and max(twos) <= T.PROBE_STEPS
-    # each trial: PROBE_STEPS steps, the first untimed after a change of count (the
-    # threading layer resizes its team then)
+    # each trial: PROBE_STEPS timed steps, after one untimed step where the count
+    # changed (the threading layer resizes its team then)
     trials = [m for k, m in runs[1:] if k == 2 and m > 1]
-    assert sum(twos) == len(trials) * T.PROBE_STEPS and 1 in twos
+    assert set(trials) == {T.PROBE_STEPS} and set(twos) == {1, T.PROBE_STEPS}
     assert len(trials) <= t_busy / T.PROBE_PERIOD + 2
     cost[2], cost[1] = 0.3e-3, 0.5e-3                  # the load goes away
     for _ in range(40):
@@ -69,6 +82,40 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     assert T.run_tuned(tuner, lambda m: m - 1, 100) <= 99
     assert numba.get_num_threads() == 2
 
+
+
+@needs_two
+def test_a_trial_spans_short_calls_and_counts_only_when_whole(monkeypatch):
+    """Calls of 5 steps (the bench's warm-up, a node's short ticks) on a host where two
+    threads cost 0.07 ms a step and one 0.12 ms, but the first 3 steps on two threads
+    after one cost 0.3 ms (its partner wakes from its sleep): a trial cut to one call's 4
+    timed steps would read two threads at 0.19 ms and keep one. Summed over calls to
+    PROBE_STEPS steps, each trial is whole and two threads win; every step is run once,
+    none lost or repeated."""
+    clock = _Clock()
+    monkeypatch.setattr(T, 'time', clock)
+    steady = {2: 0.07e-3, 1: 0.12e-3}
+    since = {'k': None, 'steps': 0}
+    total = [0]
+
+    def step(m):
+        k = numba.get_num_threads()
+        if k != since['k']:
+            since['k'], since['steps'] = k, 0
+        for _ in range(m):
+            clock.t += 0.3e-3 if k == 2 and since['steps'] < 3 else steady[k]
+            since['steps'] += 1
+        total[0] += m
+        return m
+    numba.set_num_threads(2)
+    tuner = T.ThreadTuner(2)
+    calls = 0
+    while clock.t < 0.3:                    # within one PROBE_PERIOD: no probe yet
+        assert T.run_tuned(tuner, step, 5) == 5
+        calls += 1
+    assert total[0] == 5 * calls
+    assert tuner.cost[1] is not None and tuner.best == 2
+    assert tuner.cost[2] < tuner.cost[1]
 
 def _sim():
     sim = ClothSimulator(grid_mesh(12, 12), Material(zeta=50.0, xi=2e-5, phi=1e-6,

@@ -9,32 +9,45 @@ the busy process shares), while one thread waits for nobody. Which count is fast
 depends on the load and changes from run to run (docs/performance.md, "A busy machine"),
 so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the faster,
 and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load
-both ways. A measuring call runs at most :data:`PROBE_STEPS` steps at the count on trial
-(the rest of the call at the best), so that trying a count that has become slow costs
-little.
+both ways. A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS`
+of wall time at the count on trial, over one call or several (the rest of a call at the
+best), so that trying a count that has become slow costs little (a share of about
+``PROBE_SECONDS / PROBE_PERIOD`` of the time).
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable, Optional, Tuple
 
 import numba
 
-__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'run_tuned']
+__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'run_tuned']
 
 #: [s] wall time between two measurements of the count not in use
 PROBE_PERIOD = 2.0
-#: the most steps a call runs at a count on trial
+#: the fewest timed steps of a trial of one count
 PROBE_STEPS = 20
+#: [s] the least timed wall time of a trial of one count: a trial of a few steps is a
+#: few ms, as short as a stall of a thread the OS or the hypervisor takes off its CPU
+#: (docs/performance.md, "The tuner's trials"), which would stand for the count's cost
+PROBE_SECONDS = 0.03
 
 
 class ThreadTuner:
     """The thread count for the next steps: ``most`` or 1, the one with the lower measured
-    cost per step (module docstring). :meth:`threads` says which count to run (and
-    :meth:`plan` for how many steps at most), :meth:`record` takes what they cost."""
+    cost per step (module docstring). :meth:`plan` says which count to run and for how
+    many steps at most, :meth:`record` takes what they cost.
+
+    A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS` of one
+    count, summed over as many calls as it takes, and counts only once whole: a trial of
+    all threads in calls of a few steps (the bench's warm-up, a node's short ticks) would
+    otherwise be cut short, and its few steps right after the change of count, the
+    dearest, would stand for that count's cost. A trial of one count is followed by a
+    trial of the other (:func:`run_tuned`)."""
 
     def __init__(self, most: int, period: float = PROBE_PERIOD):
         self.most = most
@@ -43,6 +56,8 @@ class ThreadTuner:
         self.period = period
         self._probe_at: Optional[float] = None
         self.last: Optional[int] = None                   # the count the last steps ran on
+        # the trial under way: [count, timed steps, seconds, whether it answers another]
+        self._trial: Optional[list] = None
 
     @property
     def best(self) -> int:
@@ -50,10 +65,12 @@ class ThreadTuner:
         return min(known, key=lambda k: self.cost[k]) if known else self.choices[0]
 
     def threads(self, now: float) -> int:
-        """The count to run at wall time ``now`` [s]: each count once first, then the
-        faster, and the other once every ``period``."""
+        """The count to run at wall time ``now`` [s]: a trial under way first, then each
+        count once, then the faster, and the other once every ``period``."""
         if len(self.choices) == 1:
             return 1
+        if self._trial is not None:
+            return self._trial[0]
         for k in self.choices:
             if self.cost[k] is None:
                 return k
@@ -65,16 +82,39 @@ class ThreadTuner:
         return self.best
 
     def plan(self, now: float) -> Tuple[int, Optional[int]]:
-        """(count, the most steps to run at it: :data:`PROBE_STEPS` while it is on trial,
-        None when it is the best)."""
+        """(count, the most timed steps to run at it: what its trial still lacks while it
+        is on trial, by its steps so far and their cost, None when it is the best)."""
         k = self.threads(now)
-        trial = len(self.choices) > 1 and (self.cost[k] is None or k != self.best)
-        return k, (PROBE_STEPS if trial else None)
+        if self._trial is None and len(self.choices) > 1 and (
+                self.cost[k] is None or k != self.best):
+            self._trial = [k, 0, 0.0, False]
+        if self._trial is None:
+            return k, None
+        _, steps, seconds, _ = self._trial
+        if steps == 0 or seconds <= 0.0:
+            return k, PROBE_STEPS
+        return k, max(PROBE_STEPS - steps,
+                      math.ceil((PROBE_SECONDS - seconds) * steps / seconds), 1)
 
     def record(self, threads: int, steps: int, seconds: float) -> None:
-        """``steps`` steps on ``threads`` threads took ``seconds`` of wall time."""
-        if steps > 0 and threads in self.cost:
-            self.cost[threads] = seconds / steps
+        """``steps`` timed steps on ``threads`` threads took ``seconds`` of wall time. A
+        trial's steps are summed until it is whole; it then sets its count's cost, and a
+        trial that answered none starts one of the other count, so that the two compare
+        alike."""
+        trial = self._trial
+        if trial is None or trial[0] != threads:
+            if steps > 0 and threads in self.cost:
+                self.cost[threads] = seconds / steps
+            return
+        trial[1] += steps
+        trial[2] += seconds
+        if trial[1] < PROBE_STEPS or trial[2] < PROBE_SECONDS:
+            return
+        self.cost[threads] = trial[2] / trial[1]
+        self._trial = None
+        other = [c for c in self.choices if c != threads]
+        if not trial[3] and other and self.cost[other[0]] is not None:
+            self._trial = [other[0], 0, 0.0, True]
 
 
 def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
@@ -91,34 +131,24 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
     (docs/performance.md, "make bench against 30fd1ab")."""
     was = numba.get_num_threads()
     done = 0
-    retrial: Optional[int] = None
     try:
         while done < n:
-            if retrial is not None:         # the count a trial is compared with, alike
-                k, most, paired, retrial = retrial, PROBE_STEPS, True, None
-            else:
-                k, most = tuner.plan(time.perf_counter())
-                paired = False
-            m = n - done if most is None else min(most, n - done)
+            k, most = tuner.plan(time.perf_counter())
             numba.set_num_threads(k)
-            if k != tuner.last and m > 1:
+            if k != tuner.last:
                 tuner.last = k
                 got = step(1)                       # the change of count, untimed
                 done += got
-                m -= 1
                 if got < 1:
                     break
-            tuner.last = k
+                continue
+            m = n - done if most is None else min(most, n - done)
             t0 = time.perf_counter()
             got = step(m)
             tuner.record(k, got, time.perf_counter() - t0)
             done += got
             if got < m:
                 break
-            if most is not None and not paired:
-                other = [c for c in tuner.choices if c != k]
-                if other and tuner.cost[other[0]] is not None:
-                    retrial = other[0]
     finally:
         numba.set_num_threads(was)
     return done
