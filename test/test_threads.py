@@ -117,6 +117,36 @@ def test_a_trial_spans_short_calls_and_counts_only_when_whole(monkeypatch):
     assert tuner.cost[1] is not None and tuner.best == 2
     assert tuner.cost[2] < tuner.cost[1]
 
+
+@needs_two
+def test_calls_of_another_length_have_the_counts_compared_again(monkeypatch):
+    """Two threads pay 2 ms per parallel region (a call, or a batch of one) and 0.15 ms a
+    step, one thread 0.26 ms a step: over calls of 5 steps one thread is the faster, over
+    calls of 400 two. After 0.3 s of short calls the tuner keeps one; the first long call
+    has the counts compared again (well within PROBE_PERIOD), and the long calls after it
+    run on two threads."""
+    clock = _Clock()
+    monkeypatch.setattr(T, 'time', clock)
+    runs = []
+
+    def step(m):
+        k = numba.get_num_threads()
+        runs.append((k, m))
+        clock.t += (2e-3 + 0.15e-3 * m) if k == 2 else 0.26e-3 * m
+        return m
+    numba.set_num_threads(2)
+    tuner = T.ThreadTuner(2)
+    while clock.t < 0.3:
+        T.run_tuned(tuner, step, 5)
+    assert tuner.best == 1
+    start = clock.t
+    T.run_tuned(tuner, step, 400)
+    assert tuner.best == 2
+    runs.clear()
+    for _ in range(4):
+        assert T.run_tuned(tuner, step, 400) == 400
+    assert runs == [(2, 400)] * 4 and clock.t - start < T.PROBE_PERIOD
+
 def _sim():
     sim = ClothSimulator(grid_mesh(12, 12), Material(zeta=50.0, xi=2e-5, phi=1e-6,
                                                      density=0.2, damping=0.1), dt=2e-4)

@@ -12,7 +12,8 @@ and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice foll
 both ways. A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS`
 of wall time at the count on trial, over one call or several (the rest of a call at the
 best), so that trying a count that has become slow costs little (a share of about
-``PROBE_SECONDS / PROBE_PERIOD`` of the time).
+``PROBE_SECONDS / PROBE_PERIOD`` of the time). Calls much longer or shorter than the
+ones the counts were compared in have them compared again (:data:`CALL_RATIO`).
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.
@@ -25,7 +26,8 @@ from typing import Callable, Optional, Tuple
 
 import numba
 
-__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'run_tuned']
+__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'CALL_RATIO',
+           'run_tuned']
 
 #: [s] wall time between two measurements of the count not in use
 PROBE_PERIOD = 2.0
@@ -33,8 +35,14 @@ PROBE_PERIOD = 2.0
 PROBE_STEPS = 20
 #: [s] the least timed wall time of a trial of one count: a trial of a few steps is a
 #: few ms, as short as a stall of a thread the OS or the hypervisor takes off its CPU
-#: (docs/performance.md, "The tuner's trials"), which would stand for the count's cost
+#: (docs/performance.md, "Trials over calls"), which would stand for the count's cost
 PROBE_SECONDS = 0.03
+#: a call this many times longer, or shorter, than the one the counts were last compared
+#: in has them compared again at once (at most once per PROBE_PERIOD): all threads pay for
+#: opening a parallel region per call (waking the pool's other threads: a 4-5 ms stall
+#: now and then on a virtual machine), which calls of a few steps feel and long ones do
+#: not, so the faster count depends on the calls' length (the same section)
+CALL_RATIO = 8
 
 
 class ThreadTuner:
@@ -58,6 +66,9 @@ class ThreadTuner:
         self.last: Optional[int] = None                   # the count the last steps ran on
         # the trial under way: [count, timed steps, seconds, whether it answers another]
         self._trial: Optional[list] = None
+        self._call_n = 0                                  # the steps of the call under way
+        self._measured_n: Optional[int] = None            # ... of the one the last trial ended in
+        self._recall_at = -math.inf                       # the earliest re-comparison by length
 
     @property
     def best(self) -> int:
@@ -80,6 +91,17 @@ class ThreadTuner:
             self._probe_at = now + self.period
             return next(k for k in self.choices if k != self.best)
         return self.best
+
+    def call(self, n: int, now: float) -> None:
+        """A call of ``n`` steps starts at wall time ``now``: one :data:`CALL_RATIO` times
+        longer or shorter than the call the last trial ended in has the counts compared
+        again now (at most once per ``period``)."""
+        self._call_n = n
+        m = self._measured_n
+        if (self._trial is None and m is not None and now >= self._recall_at
+                and (n >= CALL_RATIO * m or CALL_RATIO * n <= m)):
+            self._recall_at = now + self.period
+            self._probe_at = now
 
     def plan(self, now: float) -> Tuple[int, Optional[int]]:
         """(count, the most timed steps to run at it: what its trial still lacks while it
@@ -112,6 +134,7 @@ class ThreadTuner:
             return
         self.cost[threads] = trial[2] / trial[1]
         self._trial = None
+        self._measured_n = self._call_n
         other = [c for c in self.choices if c != threads]
         if not trial[3] and other and self.cost[other[0]] is not None:
             self._trial = [other[0], 0, 0.0, True]
@@ -131,6 +154,7 @@ def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
     (docs/performance.md, "make bench against 30fd1ab")."""
     was = numba.get_num_threads()
     done = 0
+    tuner.call(n, time.perf_counter())
     try:
         while done < n:
             k, most = tuner.plan(time.perf_counter())
