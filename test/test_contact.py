@@ -1151,6 +1151,7 @@ def test_the_obstacles_a_group_of_vertices_leaves_out_change_nothing(moving):
                      angular_velocity=(3.0, 0, 1.0))
         obs.set_pose(ball, (0, -0.5, 0.4), (0, 0, 0, 1), linear_velocity=(0, 0, -6.0))
     ob, meta, data = obs.table, obs.meta, obs.data
+    rec = C.records(ob)
     assert ob.shape[0] > C.MASK_BITS
     th, dt, m = 0.004, 5e-3, 1e-3
     kept = cut = 0
@@ -1163,17 +1164,17 @@ def test_the_obstacles_a_group_of_vertices_leaves_out_change_nothing(moving):
             # rushing at it or, half the time, ahead of a moving one
             k = trial % 9 if trial % 3 else int(rng.integers(9, ob.shape[0]))
             u = rng.standard_normal(3)
-            vo = C.records(ob)[k]['velocity'].copy()
+            vo = rec[k]['velocity'].copy()
             if trial % 2 and vo.any():
                 u = vo
             u /= np.linalg.norm(u)
             if k == 0:
-                u = C.records(ob)[0]['rotation'][:, 2]
-                centre = (C.records(ob)[0]['position'] + rng.uniform(-0.5, 0.5, 3)
+                u = rec[0]['rotation'][:, 2]
+                centre = (rec[0]['position'] + rng.uniform(-0.5, 0.5, 3)
                           + rng.uniform(0.0, 0.05) * u)
             else:
-                centre = (C.records(ob)[k]['position']
-                          + (C.records(ob)[k]['reach'] + rng.uniform(0.0, 0.03)) * u)
+                centre = (rec[k]['position']
+                          + (rec[k]['reach'] + rng.uniform(0.0, 0.03)) * u)
             pts = centre + rng.uniform(-0.005, 0.005, (16, 3))
             vel = (-rng.uniform(0.0, 6.0 if trial % 8 < 4 else 0.5, (16, 1)) * u
                    + rng.normal(0.0, 0.3, (16, 3)))

@@ -160,8 +160,8 @@ def test_the_scripted_fold_succeeds_on_ten_seeds_and_a_random_agent_does_not():
 def test_the_scripted_flatten_often_covers_over_eighty_percent_within_ten_actions():
     """The issue asks for > 0.8 on every one of 10 seeds; this expert does not do that.
     The seeds it misses keep a pleat the top layer pins, and which seeds those are
-    follows the last bit, which depends on the numba cache's history (measured figures:
-    docs/performance.md, "Environments"). What is asserted held in every measurement,
+    follows the last bit, which depends on the CPU type numba compiles for (measured
+    figures: docs/performance.md, "Environments"). What is asserted held in every measurement,
     so that a change for the worse fails."""
     res = evaluate('flatten', flatten_expert, range(10), 10)
     cov = np.array([c for c, _, _ in res])

@@ -118,8 +118,7 @@ fields of :data:`OBSTACLE`, :mod:`.obstacle_table`), mesh fields in ``Control.sd
 / ``Control.sdf_data``; per vertex, the last step's contact in ``Control.contact`` (force
 on the vertex (3), obstacle row or -1, gap ``d - th`` at its old position, and where a
 second obstacle acted in the step, its part of the force (3) and row; then the release
-mask; the columns ``C_*`` below). This
-module imports no ROS package.
+mask; the columns ``C_*`` below). This module imports no ROS package.
 """
 from __future__ import annotations
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
 import numba
@@ -45,6 +46,16 @@ PROBE_SECONDS = 0.03
 CALL_RATIO = 8
 
 
+@dataclass
+class _Trial:
+    """A trial under way: its count, whether it answers a trial of the other count, and
+    its timed steps and their wall time [s] so far."""
+    count: int
+    paired: bool
+    steps: int = 0
+    seconds: float = 0.0
+
+
 class ThreadTuner:
     """The thread count for the next steps: ``most`` or 1, the one with the lower measured
     cost per step (module docstring). :meth:`plan` says which count to run and for how
@@ -64,8 +75,7 @@ class ThreadTuner:
         self.period = period
         self._probe_at: Optional[float] = None
         self.last: Optional[int] = None                   # the count the last steps ran on
-        # the trial under way: [count, timed steps, seconds, whether it answers another]
-        self._trial: Optional[list] = None
+        self._trial: Optional[_Trial] = None              # the trial under way
         self._call_n = 0                                  # the steps of the call under way
         self._measured_n: Optional[int] = None            # ... of the one the last trial ended in
         self._recall_at = -math.inf                       # the earliest re-comparison by length
@@ -81,7 +91,7 @@ class ThreadTuner:
         if len(self.choices) == 1:
             return 1
         if self._trial is not None:
-            return self._trial[0]
+            return self._trial.count
         for k in self.choices:
             if self.cost[k] is None:
                 return k
@@ -109,10 +119,10 @@ class ThreadTuner:
         k = self.threads(now)
         if self._trial is None and len(self.choices) > 1 and (
                 self.cost[k] is None or k != self.best):
-            self._trial = [k, 0, 0.0, False]
+            self._trial = _Trial(k, paired=False)
         if self._trial is None:
             return k, None
-        _, steps, seconds, _ = self._trial
+        steps, seconds = self._trial.steps, self._trial.seconds
         if steps == 0 or seconds <= 0.0:
             return k, PROBE_STEPS
         return k, max(PROBE_STEPS - steps,
@@ -124,34 +134,31 @@ class ThreadTuner:
         trial that answered none starts one of the other count, so that the two compare
         alike."""
         trial = self._trial
-        if trial is None or trial[0] != threads:
+        if trial is None or trial.count != threads:
             if steps > 0 and threads in self.cost:
                 self.cost[threads] = seconds / steps
             return
-        trial[1] += steps
-        trial[2] += seconds
-        if trial[1] < PROBE_STEPS or trial[2] < PROBE_SECONDS:
+        trial.steps += steps
+        trial.seconds += seconds
+        if trial.steps < PROBE_STEPS or trial.seconds < PROBE_SECONDS:
             return
-        self.cost[threads] = trial[2] / trial[1]
+        self.cost[threads] = trial.seconds / trial.steps
         self._trial = None
         self._measured_n = self._call_n
         other = [c for c in self.choices if c != threads]
-        if not trial[3] and other and self.cost[other[0]] is not None:
-            self._trial = [other[0], 0, 0.0, True]
+        if not trial.paired and other and self.cost[other[0]] is not None:
+            self._trial = _Trial(other[0], paired=True)
 
 
 def run_tuned(tuner: ThreadTuner, step: Callable[[int], int], n: int) -> int:
     """``step(k)`` (returns the steps done, fewer on a failure) over ``n`` steps, each
     batch on the count ``tuner`` plans, numba's thread count restored afterwards. Returns
     the steps done. The first step after a change of count is not timed: the threading
-    layer resizes its team of threads then (measured here: a 20-step trial on 2 threads
-    right after 1 read 30% slower than the same steps later, and the tuner kept the slower
-    count on a quiet machine). A trial of one count is followed by a trial of the other,
-    of the same length and also right after its change of count, so that the two are
-    compared alike: a short trial of all threads right after their partners were parked
-    reads slower than their long-run cost (N = 40: 0.35-0.49 against 0.28 ms a step), and
-    against one thread's long-run cost it kept one thread on a quiet machine, at 0.46 ms
-    (docs/performance.md, "make bench against 30fd1ab")."""
+    layer resizes its team of threads then. A trial of one count is followed by a trial
+    of the other, as long and also right after its change of count, so that the two are
+    compared alike: a trial of all threads right after their partners were parked reads
+    slower than their long-run cost, and compared with one thread's long-run cost it kept
+    one thread on a quiet machine (docs/performance.md, "make bench against 30fd1ab")."""
     was = numba.get_num_threads()
     done = 0
     tuner.call(n, time.perf_counter())
