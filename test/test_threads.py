@@ -1,6 +1,8 @@
 """The step's thread count (cosserat_ros.core.threads): the faster of all threads and one,
 measured on a fake clock; trial runs kept short; the trajectory the same to the bit on any
 count."""
+import math
+
 import numba
 import numpy as np
 import pytest
@@ -146,6 +148,38 @@ def test_calls_of_another_length_have_the_counts_compared_again(monkeypatch):
     for _ in range(4):
         assert T.run_tuned(tuner, step, 400) == 400
     assert runs == [(2, 400)] * 4 and clock.t - start < T.PROBE_PERIOD
+
+@needs_two
+def test_a_trial_of_long_steps_ends_at_probe_enough(monkeypatch):
+    """The implicit solver's steps: 17 ms on two threads, 26 ms on one, in calls of one
+    step (the bench's window) and of 100. Each trial of one thread ends once PROBE_ENOUGH
+    of wall time is timed, well before PROBE_STEPS steps (2 steps of 26 ms, after the
+    untimed one where the count changed), so that over 4 s of calls one thread ran 3
+    steps in each trial: the first compare and one per PROBE_PERIOD. The choice is two
+    threads."""
+    clock = _Clock()
+    monkeypatch.setattr(T, 'time', clock)
+    cost = {2: 17e-3, 1: 26e-3}
+    runs = []
+
+    def step(m):
+        k = numba.get_num_threads()
+        runs.append((k, m))
+        clock.t += m * cost[k]
+        return m
+    numba.set_num_threads(2)
+    for n in (1, 100):
+        clock.t = 0.0
+        runs.clear()
+        tuner = T.ThreadTuner(2)
+        while clock.t < 4.0:
+            assert T.run_tuned(tuner, step, n) == n
+        assert tuner.best == 2
+        ones = sum(m for k, m in runs if k == 1)
+        timed = math.ceil(T.PROBE_ENOUGH / cost[1])
+        assert timed < T.PROBE_STEPS
+        assert 0 < ones <= (1 + timed) * (clock.t / T.PROBE_PERIOD + 1)
+
 
 def _sim():
     sim = ClothSimulator(grid_mesh(12, 12), Material(zeta=50.0, xi=2e-5, phi=1e-6,

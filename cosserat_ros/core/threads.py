@@ -8,12 +8,14 @@ CPU for a time slice now and then, and the others wait at the barrier until it c
 the busy process shares), while one thread waits for nobody. Which count is faster
 depends on the load and changes from run to run (docs/performance.md, "A busy machine"),
 so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the faster,
-and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the load
-both ways. A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS`
-of wall time at the count on trial, over one call or several (the rest of a call at the
-best), so that trying a count that has become slow costs little (a share of about
-``PROBE_SECONDS / PROBE_PERIOD`` of the time). Calls much longer or shorter than the
-ones the counts were compared in have them compared again (:data:`CALL_RATIO`).
+and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the
+load both ways. A trial is at least
+:data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS` of wall time at the count on
+trial, over one call or several (the rest of a call at the best), or :data:`PROBE_ENOUGH`
+s of fewer steps when steps are long, so that trying a count that has become slow costs
+little (a share of about ``PROBE_SECONDS / PROBE_PERIOD`` of the time, at most about
+``PROBE_ENOUGH / PROBE_PERIOD``). Calls much longer or shorter than the ones the counts
+were compared in have them compared again (:data:`CALL_RATIO`).
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.
@@ -27,8 +29,8 @@ from typing import Callable, Optional, Tuple
 
 import numba
 
-__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'CALL_RATIO',
-           'run_tuned']
+__all__ = ['ThreadTuner', 'PROBE_PERIOD', 'PROBE_STEPS', 'PROBE_SECONDS', 'PROBE_ENOUGH',
+           'CALL_RATIO', 'run_tuned']
 
 #: [s] wall time between two measurements of the count not in use
 PROBE_PERIOD = 2.0
@@ -38,6 +40,11 @@ PROBE_STEPS = 20
 #: few ms, as short as a stall of a thread the OS or the hypervisor takes off its CPU
 #: (docs/performance.md, "Trials over calls"), which would stand for the count's cost
 PROBE_SECONDS = 0.03
+#: [s] a trial this long is whole with fewer than PROBE_STEPS steps: at the implicit
+#: solver's 5-30 ms steps, 20 of the slower count every PROBE_PERIOD cost 5-10% of the
+#: time, and 20 of the 120 steps of the bench's window (docs/performance.md, "Trials of
+#: long steps")
+PROBE_ENOUGH = 0.05
 #: a call this many times longer, or shorter, than the one the counts were last compared
 #: in has them compared again at once (at most once per PROBE_PERIOD): all threads pay for
 #: opening a parallel region per call (waking the pool's other threads: a 4-5 ms stall
@@ -62,7 +69,8 @@ class ThreadTuner:
     many steps at most, :meth:`record` takes what they cost.
 
     A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS` of one
-    count, summed over as many calls as it takes, and counts only once whole: a trial of
+    count (or :data:`PROBE_ENOUGH` of fewer, long steps), summed over as many calls as it
+    takes, and counts only once whole: a trial of
     all threads in calls of a few steps (the bench's warm-up, a node's short ticks) would
     otherwise be cut short, and its few steps right after the change of count, the
     dearest, would stand for that count's cost. A trial of one count is followed by a
@@ -124,9 +132,16 @@ class ThreadTuner:
             return k, None
         steps, seconds = self._trial.steps, self._trial.seconds
         if steps == 0 or seconds <= 0.0:
-            return k, PROBE_STEPS
-        return k, max(PROBE_STEPS - steps,
-                      math.ceil((PROBE_SECONDS - seconds) * steps / seconds), 1)
+            # its first batch, before any of its steps was timed: as many as the fastest
+            # known cost says fill PROBE_ENOUGH, at most PROBE_STEPS (a count that has
+            # become slow runs no longer than PROBE_STEPS of its own)
+            known = [c for c in self.cost.values() if c is not None and c > 0.0]
+            if not known:
+                return k, PROBE_STEPS
+            return k, max(min(PROBE_STEPS, math.ceil(PROBE_ENOUGH / min(known))), 1)
+        per = seconds / steps
+        short = max(PROBE_STEPS - steps, math.ceil((PROBE_SECONDS - seconds) / per))
+        return k, max(min(short, math.ceil((PROBE_ENOUGH - seconds) / per)), 1)
 
     def record(self, threads: int, steps: int, seconds: float) -> None:
         """``steps`` timed steps on ``threads`` threads took ``seconds`` of wall time. A
@@ -140,7 +155,8 @@ class ThreadTuner:
             return
         trial.steps += steps
         trial.seconds += seconds
-        if trial.steps < PROBE_STEPS or trial.seconds < PROBE_SECONDS:
+        if trial.seconds < PROBE_SECONDS or (trial.steps < PROBE_STEPS
+                                             and trial.seconds < PROBE_ENOUGH):
             return
         self.cost[threads] = trial.seconds / trial.steps
         self._trial = None
