@@ -181,6 +181,35 @@ def test_a_trial_of_long_steps_ends_at_probe_enough(monkeypatch):
         assert 0 < ones <= (1 + timed) * (clock.t / T.PROBE_PERIOD + 1)
 
 
+@needs_two
+def test_one_stalled_call_does_not_switch_the_count(monkeypatch):
+    """Calls of 5 steps, two threads 0.06 ms a step and one 0.07 ms, and one call in 40
+    on two threads stalls 0.35 ms (its region waking a parked thread). Within one
+    PROBE_PERIOD, one thread runs only its trial: a stalled call's 0.13 ms a step, read
+    alone, would switch the count until the next probe."""
+    clock = _Clock()
+    monkeypatch.setattr(T, 'time', clock)
+    calls = [0]
+    ones = [0]
+
+    def step(m):
+        k = numba.get_num_threads()
+        if k == 1:
+            ones[0] += m
+            clock.t += 0.07e-3 * m
+        else:
+            calls[0] += 1
+            clock.t += 0.06e-3 * m + (0.35e-3 if calls[0] % 40 == 0 else 0.0)
+        return m
+    numba.set_num_threads(2)
+    tuner = T.ThreadTuner(2)
+    while clock.t < 0.9 * T.PROBE_PERIOD:
+        assert T.run_tuned(tuner, step, 5) == 5
+    assert tuner.best == 2
+    trial = math.ceil(T.PROBE_SECONDS / 0.07e-3) + 5
+    assert 0 < ones[0] <= trial
+
+
 def _sim():
     sim = ClothSimulator(grid_mesh(12, 12), Material(zeta=50.0, xi=2e-5, phi=1e-6,
                                                      density=0.2, damping=0.1), dt=2e-4)

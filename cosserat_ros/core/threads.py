@@ -63,6 +63,13 @@ class _Trial:
     seconds: float = 0.0
 
 
+def _whole(t: _Trial) -> bool:
+    """Whether ``t``'s steps are enough to stand for its count's cost: PROBE_STEPS steps
+    and PROBE_SECONDS, or PROBE_ENOUGH of fewer."""
+    return t.seconds >= PROBE_SECONDS and (t.steps >= PROBE_STEPS
+                                           or t.seconds >= PROBE_ENOUGH)
+
+
 class ThreadTuner:
     """The thread count for the next steps: ``most`` or 1, the one with the lower measured
     cost per step (module docstring). :meth:`plan` says which count to run and for how
@@ -84,6 +91,7 @@ class ThreadTuner:
         self._probe_at: Optional[float] = None
         self.last: Optional[int] = None                   # the count the last steps ran on
         self._trial: Optional[_Trial] = None              # the trial under way
+        self._window: Optional[_Trial] = None             # the best's steps since its cost
         self._call_n = 0                                  # the steps of the call under way
         self._measured_n: Optional[int] = None            # ... of the one the last trial ended in
         self._recall_at = -math.inf                       # the earliest re-comparison by length
@@ -147,16 +155,28 @@ class ThreadTuner:
         """``steps`` timed steps on ``threads`` threads took ``seconds`` of wall time. A
         trial's steps are summed until it is whole; it then sets its count's cost, and a
         trial that answered none starts one of the other count, so that the two compare
-        alike."""
+        alike. Steps outside a trial are summed the same way before they set their
+        count's cost."""
         trial = self._trial
         if trial is None or trial.count != threads:
-            if steps > 0 and threads in self.cost:
-                self.cost[threads] = seconds / steps
+            # steps at the best, outside a trial: summed as a trial is, so that one short
+            # call that stalled (a 5-step call at 0.65 ms instead of 0.3) does not stand
+            # for the count's cost and switch it
+            if threads not in self.cost:
+                return
+            if self._window is None or self._window.count != threads:
+                self._window = _Trial(threads, paired=False)
+            w = self._window
+            w.steps += steps
+            w.seconds += seconds
+            if _whole(w):
+                self.cost[threads] = w.seconds / w.steps
+                self._window = None
             return
+        self._window = None
         trial.steps += steps
         trial.seconds += seconds
-        if trial.seconds < PROBE_SECONDS or (trial.steps < PROBE_STEPS
-                                             and trial.seconds < PROBE_ENOUGH):
+        if not _whole(trial):
             return
         self.cost[threads] = trial.seconds / trial.steps
         self._trial = None
