@@ -77,16 +77,16 @@ class ThreadTuner:
 
     A trial is at least :data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS` of one
     count (or :data:`PROBE_ENOUGH` of fewer, long steps), summed over as many calls as it
-    takes, and counts only once whole: a trial of
-    all threads in calls of a few steps (the bench's warm-up, a node's short ticks) would
-    otherwise be cut short, and its few steps right after the change of count, the
-    dearest, would stand for that count's cost. A trial of one count is followed by a
-    trial of the other (:func:`run_tuned`)."""
+    takes, and counts only once whole: a trial of all threads in calls of a few steps
+    (the bench's warm-up, a node's short ticks) would otherwise be cut short, and its few
+    steps right after the change of count, the dearest, would stand for that count's
+    cost. A trial of one count is followed by a trial of the other (:func:`run_tuned`).
+    The steps at the best between trials set its cost the same way, once as many."""
 
     def __init__(self, most: int, period: float = PROBE_PERIOD):
         self.most = most
         self.choices = (most, 1) if most > 1 else (1,)
-        self.cost = {k: None for k in self.choices}      # [s] per step, latest
+        self.cost = {k: None for k in self.choices}      # [s] per step, latest whole
         self.period = period
         self._probe_at: Optional[float] = None
         self.last: Optional[int] = None                   # the count the last steps ran on
