@@ -23,6 +23,17 @@ class _Clock:
         return self.t
 
 
+def _stepper(clock, cost, runs):
+    """A fake ``step(m)``: m steps at ``cost[k]`` s each on numba's current count k,
+    each call logged as (k, m) in ``runs``."""
+    def step(m):
+        k = numba.get_num_threads()
+        runs.append((k, m))
+        clock.t += m * cost[k]
+        return m
+    return step
+
+
 @needs_two
 def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     """A host where two threads cost 0.3 ms a step alone and 3 ms beside a busy process
@@ -34,12 +45,7 @@ def test_run_tuned_takes_the_faster_count_and_keeps_trials_short(monkeypatch):
     monkeypatch.setattr(T, 'time', clock)
     cost = {2: 0.3e-3, 1: 0.5e-3}
     runs = []
-
-    def step(m):
-        k = numba.get_num_threads()
-        runs.append((k, m))
-        clock.t += m * cost[k]
-        return m
+    step = _stepper(clock, cost, runs)
     numba.set_num_threads(2)
     tuner = T.ThreadTuner(2)
     for _ in range(20):
@@ -149,6 +155,7 @@ def test_calls_of_another_length_have_the_counts_compared_again(monkeypatch):
         assert T.run_tuned(tuner, step, 400) == 400
     assert runs == [(2, 400)] * 4 and clock.t - start < T.PROBE_PERIOD
 
+
 @needs_two
 def test_a_trial_of_long_steps_ends_at_probe_enough(monkeypatch):
     """The implicit solver's steps: 17 ms on two threads, 26 ms on one, in calls of one
@@ -161,12 +168,7 @@ def test_a_trial_of_long_steps_ends_at_probe_enough(monkeypatch):
     monkeypatch.setattr(T, 'time', clock)
     cost = {2: 17e-3, 1: 26e-3}
     runs = []
-
-    def step(m):
-        k = numba.get_num_threads()
-        runs.append((k, m))
-        clock.t += m * cost[k]
-        return m
+    step = _stepper(clock, cost, runs)
     numba.set_num_threads(2)
     for n in (1, 100):
         clock.t = 0.0

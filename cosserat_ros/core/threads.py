@@ -7,15 +7,15 @@ CPU for a time slice now and then, and the others wait at the barrier until it c
 (they sleep after a short spin, ``fast/workshare.arrive``, so they no longer burn the CPU
 the busy process shares), while one thread waits for nobody. Which count is faster
 depends on the load and changes from run to run (docs/performance.md, "A busy machine"),
-so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the faster,
-and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice follows the
-load both ways. A trial is at least
-:data:`PROBE_STEPS` timed steps and :data:`PROBE_SECONDS` of wall time at the count on
-trial, over one call or several (the rest of a call at the best), or :data:`PROBE_ENOUGH`
-s of fewer steps when steps are long, so that trying a count that has become slow costs
-little (a share of about ``PROBE_SECONDS / PROBE_PERIOD`` of the time, at most about
-``PROBE_ENOUGH / PROBE_PERIOD``). Calls much longer or shorter than the ones the counts
-were compared in have them compared again (:data:`CALL_RATIO`).
+so it is measured, not guessed: :class:`ThreadTuner` runs each count once, then the
+faster, and the other once every :data:`PROBE_PERIOD` s of wall time, so the choice
+follows the load both ways. A trial is at least :data:`PROBE_STEPS` timed steps and
+:data:`PROBE_SECONDS` of wall time at the count on trial, over one call or several (the
+rest of a call at the best), or :data:`PROBE_ENOUGH` s of fewer steps when steps are
+long, so that trying a count that has become slow costs little (a share of about
+``PROBE_SECONDS / PROBE_PERIOD`` of the time, at most about ``PROBE_ENOUGH /
+PROBE_PERIOD``). Calls much longer or shorter than the ones the counts were compared in
+have them compared again (:data:`CALL_RATIO`).
 
 Every thread count gives the same numbers to the bit (``fast/workshare.py``), so the
 choice changes the speed only, never the trajectory.
@@ -62,12 +62,14 @@ class _Trial:
     steps: int = 0
     seconds: float = 0.0
 
-
-def _whole(t: _Trial) -> bool:
-    """Whether ``t``'s steps are enough to stand for its count's cost: PROBE_STEPS steps
-    and PROBE_SECONDS, or PROBE_ENOUGH of fewer."""
-    return t.seconds >= PROBE_SECONDS and (t.steps >= PROBE_STEPS
-                                           or t.seconds >= PROBE_ENOUGH)
+    def add(self, steps: int, seconds: float) -> bool:
+        """Adds ``steps`` that took ``seconds``; whether the steps so far are enough to
+        stand for the count's cost: PROBE_STEPS steps and PROBE_SECONDS, or PROBE_ENOUGH
+        of fewer."""
+        self.steps += steps
+        self.seconds += seconds
+        return self.seconds >= PROBE_SECONDS and (self.steps >= PROBE_STEPS
+                                                  or self.seconds >= PROBE_ENOUGH)
 
 
 class ThreadTuner:
@@ -167,16 +169,12 @@ class ThreadTuner:
             if self._window is None or self._window.count != threads:
                 self._window = _Trial(threads, paired=False)
             w = self._window
-            w.steps += steps
-            w.seconds += seconds
-            if _whole(w):
+            if w.add(steps, seconds):
                 self.cost[threads] = w.seconds / w.steps
                 self._window = None
             return
         self._window = None
-        trial.steps += steps
-        trial.seconds += seconds
-        if not _whole(trial):
+        if not trial.add(steps, seconds):
             return
         self.cost[threads] = trial.seconds / trial.steps
         self._trial = None
